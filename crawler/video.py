@@ -1,0 +1,161 @@
+"""Recorded video as a frame source: raw Annex-B H.264 (as picamera2 and rpicam-vid write), MP4, MKV.
+
+Frames come out as the decoder's Y plane, never colour-converted. Frame times come, in order of
+preference, from a --pts file, from --fps, from the container, or from a `<name>.pts` file beside
+the video; which one was used is part of the source's description, because wrong times mean
+wrong speeds.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .errors import VideoError
+from .ports import Frame
+
+_log = logging.getLogger(__name__)
+
+
+def read_pts(path: str | Path) -> np.ndarray:
+    """Frame times in seconds from rpicam-vid's `# timecode format v2` file or picamera2's pts lines.
+
+    Both hold one millisecond timestamp per line; comment lines start with '#'.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text().splitlines()
+    except FileNotFoundError:
+        raise VideoError(f"pts file {str(path)!r} not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise VideoError(f"pts file {str(path)!r} cannot be read: {exc}") from None
+    times = []
+    for n, line in enumerate(lines, 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        try:
+            times.append(float(line.split()[0]) / 1000.0)
+        except ValueError:
+            raise VideoError(f"pts file {str(path)!r} line {n}: {line[:40]!r} is not a millisecond "
+                             "timestamp") from None
+    t = np.asarray(times)
+    if len(t) == 0:
+        raise VideoError(f"pts file {str(path)!r} holds no timestamps")
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if len(bad):
+        raise VideoError(f"pts file {str(path)!r}: timestamp {bad[0] + 2} ({t[bad[0] + 1] * 1000:g} ms) "
+                         "does not increase; frame times must be strictly increasing")
+    return t - t[0]
+
+
+class VideoReplay:
+    """A recording played back as a FrameSource."""
+
+    def __init__(self, path: str | Path, pts: str | Path | None = None, fps: float | None = None,
+                 expect_size: tuple[int, int] | None = None):
+        self.path = Path(path)
+        self.pts_path = Path(pts) if pts else None
+        self.fps = fps
+        self.expect_size = expect_size
+        self.frames_read = 0
+        self.timing = ""
+        self.description = f"replay {self.path.name}"
+        self.warnings: list[str] = []
+        self._container = None
+        self._times = None
+
+    def __enter__(self):
+        import av   # PyAV: python3-av on Raspberry Pi OS
+
+        if self.fps is not None and not self.fps > 0:
+            raise VideoError(f"--fps {self.fps} must be > 0")
+        if not self.path.is_file():
+            raise VideoError(f"video {str(self.path)!r} not found")
+        try:
+            self._container = av.open(str(self.path))
+        except (av.error.FFmpegError, OSError, ValueError) as exc:
+            raise VideoError(f"video {str(self.path)!r} cannot be opened: {exc}") from None
+        if not self._container.streams.video:
+            self._container.close()
+            raise VideoError(f"{str(self.path)!r} holds no video stream")
+        if self.pts_path is not None:
+            self._times = read_pts(self.pts_path)
+            self.timing = f"times from {self.pts_path.name}"
+        elif self.fps is not None:
+            self.timing = f"times from --fps {self.fps:g}"
+        else:
+            sidecar = self.path.with_suffix(".pts")
+            if self._container.format.name in ("h264", "hevc", "mjpeg") and sidecar.is_file():
+                self._times = read_pts(sidecar)
+                self.timing = f"times from {sidecar.name} (found beside the video)"
+            else:
+                self.timing = "times from the container"
+        self.description = f"replay {self.path.name} ({self.timing})"
+        return self
+
+    def __exit__(self, *exc):
+        if self._container is not None:
+            self._container.close()
+            self._container = None
+
+    def frames(self) -> Iterator[Frame]:
+        import av
+
+        stream = self._container.streams.video[0]
+        stream.thread_type = "AUTO"
+        first = None
+        n = 0
+        try:
+            for frame in self._container.decode(stream):
+                t = self._time_of(frame, n)
+                if first is None:
+                    first = t
+                    self._check_size(frame)
+                if n and t <= last:
+                    raise VideoError(f"{self.path.name}: frame {n} time {t:.6f} s does not increase "
+                                     f"({self.timing})")
+                last = t
+                yield Frame(n, t - first, _y_plane(frame))
+                n += 1
+                self.frames_read = n
+        except av.error.FFmpegError as exc:
+            raise VideoError(f"{self.path.name}: stream breaks after frame {n}: {exc}") from None
+        if n == 0:
+            raise VideoError(f"video {str(self.path)!r} holds no decodable frames")
+        if self._times is not None and len(self._times) > n:
+            msg = (f"pts file has {len(self._times)} timestamps but the video has {n} frames; "
+                   "the extra timestamps were ignored")
+            self.warnings.append(msg)
+            _log.warning(msg)
+
+    def _time_of(self, frame, n: int) -> float:
+        if self._times is not None:
+            if n >= len(self._times):
+                raise VideoError(f"{self.path.name} has more frames than the {len(self._times)} "
+                                 f"timestamps of its pts file; is it the right pts file?")
+            return float(self._times[n])
+        if self.fps is not None:
+            return n / self.fps
+        if frame.time is None:
+            raise VideoError(f"{self.path.name} is a raw stream without frame times; pass --pts FILE "
+                             "(from rpicam-vid --save-pts or picamera2's pts=) or --fps N")
+        return float(frame.time)
+
+    def _check_size(self, frame):
+        if self.expect_size and (frame.width, frame.height) != tuple(self.expect_size):
+            w, h = self.expect_size
+            raise VideoError(f"{self.path.name} is {frame.width}x{frame.height} but [camera] width/height "
+                             f"say {w}x{h}; set them to the video's size (and its FOV or calibration)")
+
+
+def _y_plane(frame) -> np.ndarray:
+    """The luma plane as a (height, width) uint8 view, without colour conversion."""
+    if frame.format.name in ("yuv420p", "yuvj420p", "yuv422p", "yuvj422p", "yuv444p", "nv12", "gray"):
+        plane = frame.planes[0]
+        buf = np.frombuffer(plane, np.uint8)
+        return buf.reshape(frame.height, plane.line_size)[:, :frame.width]
+    return frame.to_ndarray(format="gray")

@@ -1,0 +1,112 @@
+"""Odometry on exactly known synthetic motion: a flat texture translated under a square camera."""
+
+import cv2
+import numpy as np
+import pytest
+
+from crawler.geometry import Camera, Mount, make_projection
+from crawler.odometry import Odometer, SpeedFilter, robust_step
+
+CAM = Camera.from_fov(640, 480, 37.16, 53.50)
+MOUNT = Mount(0.15, 0.2256, 0.0)
+ROI = (200, 240, 240, 240)
+M_PER_PX = MOUNT.height_m / CAM.fy
+
+
+@pytest.fixture(scope="module")
+def texture():
+    rng = np.random.default_rng(7)
+    tex = cv2.GaussianBlur((rng.random((6000, 640)) * 255).astype(np.float32), (0, 0), 1.3)
+    return cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+
+
+def view(texture, offset_px):
+    """The frame seen after the wall moved offset_px down the image (the car moved forward)."""
+    m = np.float32([[1, 0, 0], [0, 1, offset_px - 5000]])
+    return cv2.warpAffine(texture, m, (640, 480), flags=cv2.INTER_LINEAR)
+
+
+def run(texture, offsets, times=None, frames=None):
+    odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
+    out = []
+    for i, off in enumerate(offsets):
+        img = view(texture, off) if frames is None or frames[i] is None else frames[i]
+        out.append(odo.update(img, times[i] if times is not None else i / 30))
+    return odo, out
+
+
+@pytest.mark.parametrize("px_per_frame", [0.0, 3.3, 21.7, 85.0])
+def test_distance_from_standstill_to_fast_motion(texture, px_per_frame):
+    offsets = np.arange(40) * px_per_frame
+    odo, est = run(texture, offsets)
+    assert all(e.tracking for e in est)
+    true = offsets[-1] * M_PER_PX
+    assert odo.distance == pytest.approx(true, abs=2e-4 * max(true, 1e-3) + 2e-6)
+    assert est[-1].speed_m_s == pytest.approx(px_per_frame * 30 * M_PER_PX, abs=1e-3)
+
+
+def test_reverse_counts_back(texture):
+    offsets = np.concatenate([np.arange(30) * 12.0, 29 * 12.0 - np.arange(1, 50) * 12.0])
+    odo, est = run(texture, offsets)
+    assert odo.distance == pytest.approx(offsets[-1] * M_PER_PX, abs=2e-5)
+    assert odo.distance < 0 and est[-1].speed_m_s < 0
+
+
+def test_black_frames_are_lost_and_never_integrated(texture):
+    offsets = np.arange(40) * 4.0
+    black = np.zeros((480, 640), np.uint8)
+    frames = [None] * 40
+    for i in (10, 25, 26, 27):
+        frames[i] = black
+    odo, est = run(texture, offsets, frames=frames)
+    lost = [e.frame for e in est if not e.tracking]
+    assert lost == [10, 25, 26, 27]
+    assert est[10].distance_m == est[9].distance_m and est[10].speed_m_s is None
+    assert est[27].distance_m == est[24].distance_m
+    # the keyframe survives a short blackout: no motion is lost
+    assert odo.distance == pytest.approx(offsets[-1] * M_PER_PX, abs=2e-5)
+
+
+def test_featureless_stretch_holds_then_resumes(texture):
+    offsets = np.arange(60) * 10.0
+    rng = np.random.default_rng(1)
+    flat = [np.clip(128 + rng.normal(0, 0.3, (480, 640)), 0, 255).astype(np.uint8) for _ in range(25)]
+    frames = [None] * 20 + flat + [None] * 15
+    odo, est = run(texture, offsets, frames=frames)
+    assert not any(e.tracking for e in est[21:45])
+    assert len({e.distance_m for e in est[20:45]}) == 1          # held, not integrated
+    assert all(e.tracking for e in est[46:])
+    gained = odo.distance - est[45].distance_m
+    assert gained == pytest.approx((offsets[-1] - offsets[45]) * M_PER_PX, abs=2e-5)
+
+
+def test_speed_survives_dropped_frames(texture):
+    times = np.array([i / 30 for i in range(60) if i % 7 not in (3, 4)])
+    speed_px = 300.0    # px/s
+    odo, est = run(texture, times * speed_px, times=times)
+    assert est[-1].speed_m_s == pytest.approx(speed_px * M_PER_PX, rel=2e-3)
+    assert odo.distance == pytest.approx(times[-1] * speed_px * M_PER_PX, rel=5e-4)
+
+
+def test_quality_reports_tracks_and_spread(texture):
+    odo, est = run(texture, np.arange(5) * 5.0)
+    e = est[-1]
+    assert e.tracks >= 20 and e.inliers >= 20 and 0.9 <= e.quality <= 1.0
+    assert e.spread_mm < 0.02
+    assert set(e.as_dict()) >= {"frame", "t_s", "distance_m", "speed_m_s", "quality", "tracking"}
+
+
+def test_robust_step_ignores_outliers():
+    rng = np.random.default_rng(0)
+    v = np.concatenate([rng.normal(1.0, 0.001, 40), [5.0, -3.0, 2.0, 1.2]])
+    step, inl, sigma = robust_step(v, 1e-4, 3.5)
+    assert step == pytest.approx(1.0, abs=1e-3) and inl[:40].all() and not inl[40:].any()
+
+
+def test_speed_filter_is_a_least_squares_slope():
+    f = SpeedFilter(0.5)
+    for t in np.arange(0, 2, 0.05):
+        v = f.update(t, 0.3 * t + 1.0)
+    assert v == pytest.approx(0.3)
+    f.reset()
+    assert f.update(0.0, 0.0) is None
