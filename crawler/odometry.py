@@ -34,6 +34,8 @@ class OdometryParams:
     max_lost_frames: int = 15         # keep hoping for the old keyframe this long, then start afresh
     min_response: float = 0.03        # weakest phase-correlation peak trusted as a first guess
     speed_window_s: float = 0.25      # least-squares speed over this much recent history
+    spread_jump: float = 4.0          # tracks disagreeing this many times more than lately: corrupt frame
+    spread_floor_px: float = 0.1      # ...unless they still agree within this
 
 
 @dataclass
@@ -161,6 +163,7 @@ class Odometer:
         self._last_lat = 0.0
         self._velocity = 0.0
         self._speed = SpeedFilter(self.params.speed_window_s)
+        self._spreads: deque[float] = deque(maxlen=15)   # recent per-frame track disagreement
 
     def update(self, frame: np.ndarray, t_s: float) -> Estimate:
         """Process one full grey frame (only its ROI is read) taken at t_s seconds."""
@@ -284,7 +287,9 @@ class Odometer:
                 lat, inl_l, _ = robust_step(lateral, floor, p.mad_k)
                 both = inl & inl_l
                 n_in = int(both.sum())
-                if n_in >= p.min_tracks and n_in >= p.min_inlier_share * n_tracked:
+                usual = np.median(self._spreads) if self._spreads else np.inf
+                calm = sigma <= max(p.spread_jump * usual, p.spread_floor_px * self.m_per_px)
+                if n_in >= p.min_tracks and n_in >= p.min_inlier_share * n_tracked and calm:
                     step = float(axial[both].mean())
                     lat = float(lateral[both].mean())
                     result = (step, lat, n_in, sigma, pts1[both], idx[both])
@@ -295,6 +300,7 @@ class Odometer:
         if dt_prev > 0:
             self._velocity = (step - self._last_step) / dt_prev
         self._last_step, self._last_lat = step, lat
+        self._spreads.append(sigma)
         self._last_good_t = t_s
         self.distance = kf.distance + step
         self.lateral = kf.lateral + lat

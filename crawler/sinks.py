@@ -88,8 +88,8 @@ class Annotator:
 class Progress:
     """A single self-overwriting status line on a terminal's stderr; silent otherwise."""
 
-    def __init__(self, stream=sys.stderr, every_s: float = 0.5):
-        self.stream = stream
+    def __init__(self, stream=None, every_s: float = 0.5):
+        self.stream = stream = stream or sys.stderr
         self.enabled = hasattr(stream, "isatty") and stream.isatty()
         self.every_s = every_s
         self._last = 0.0
