@@ -1,12 +1,16 @@
 """crawlerd: distance and speed of an in-pipe crawler from the pipe wall it sees.
 
 Usage:
-  crawlerd --replay FILE [--pts FILE | --fps N] [--config FILE] [--log FILE.jsonl]
-           [--annotate OUT.mp4] [--realtime] [--method M] [--tilt DEG] [--set section.key=value]
-  crawlerd --check-config [--config FILE]
+  crawlerd [--config FILE]                 the service: CSI camera, LEDs, Zenoh (systemd runs this)
+  crawlerd --sim [--sim-speed M_PER_S] [--sim-tilt DEG] [--sim-profile P]
+                                           the same service on a simulated camera and mock GPIO
+  crawlerd --replay FILE [--pts FILE | --fps N] [--log FILE.jsonl] [--annotate OUT.mp4]
+           [--realtime] [--publish]        measure a recording
+  crawlerd --check-config                  validate the configuration, print the derived geometry
 
 Prints one JSON summary line on stdout when the run ends; progress goes to stderr on a terminal.
-Exit status: 0 done, 1 a run that broke (the summary still says how far it got), 2 bad input.
+Exit status: 0 done, 1 a run that broke (the summary still says how far it got), 2 bad input or
+a camera that cannot be opened.
 """
 
 from __future__ import annotations
@@ -18,34 +22,60 @@ import os
 import signal
 import sys
 import traceback
+from pathlib import Path
 
 from . import __version__
-from .errors import BadConfig, CrawlerError
+from .errors import CameraUnavailable, CrawlerError
 
 PROG = "crawlerd"
+DEFAULT_CONFIG = "/etc/crawler/crawlerd.toml"
+_log = logging.getLogger(PROG)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description="Visual odometry for in-pipe crawlers.")
+    p = argparse.ArgumentParser(prog=PROG, description="Visual odometry for in-pipe crawlers.",
+                                epilog="Documentation: docs/odometry.md, docs/deploy.md, docs/topics.md")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    mode = p.add_argument_group("what to run")
+    mode = p.add_argument_group("what to run (default: the live camera)")
     mode.add_argument("--replay", metavar="FILE", help="process a recording (.h264, .mp4, .mkv)")
+    mode.add_argument("--sim", action="store_true", help="the daemon on hw_sim's simulated camera and mock pins")
     mode.add_argument("--check-config", action="store_true",
                       help="validate the configuration, print the derived geometry and exit")
     cfg = p.add_argument_group("configuration")
-    cfg.add_argument("--config", metavar="FILE", help="TOML configuration (see docs/odometry.md)")
+    cfg.add_argument("--config", metavar="FILE",
+                     help=f"TOML configuration (default: $CRAWLERD_CONFIG or {DEFAULT_CONFIG} if present)")
     cfg.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
                      help="override one config key, e.g. --set mount.tilt_deg=24 (repeatable)")
     cfg.add_argument("--method", choices=("pixel", "plane", "cylinder"), help="= --set odometry.method=M")
     cfg.add_argument("--tilt", type=float, metavar="DEG", help="= --set mount.tilt_deg=DEG")
+    cfg.add_argument("--state-dir", metavar="DIR", help="= --set state.directory=DIR (checkpoint)")
     rep = p.add_argument_group("replay")
     rep.add_argument("--pts", metavar="FILE", help="frame times: rpicam-vid --save-pts or picamera2 pts file")
     rep.add_argument("--fps", type=float, metavar="N", help="frame times for a raw stream without a pts file")
     rep.add_argument("--realtime", action="store_true", help="pace frames to their timestamps")
-    rep.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    rep.add_argument("--publish", action="store_true", help="publish the replay over Zenoh like the daemon")
+    sim = p.add_argument_group("simulator (--sim)")
+    sim.add_argument("--sim-speed", type=float, default=0.2, metavar="M_PER_S", help="crawler speed (0.2)")
+    sim.add_argument("--sim-tilt", type=float, metavar="DEG",
+                     help="camera tilt of the simulated car (also sets mount.tilt_deg)")
+    sim.add_argument("--sim-profile", default="constant", choices=("constant", "accel", "stopgo", "reverse"),
+                     help="motion profile (constant)")
+    sim.add_argument("--sim-sensor", default="imx219", choices=("imx219", "ov5647", "imx708"),
+                     help="simulated camera module (imx219)")
+    sim.add_argument("--sim-seed", type=int, default=0, metavar="N", help="wall texture seed")
+    net = p.add_argument_group("zenoh")
+    net.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
+                     help="e.g. tcp/0.0.0.0:7447 (repeatable; = [zenoh] listen)")
+    net.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
+                     help="e.g. tcp/192.168.1.10:7447 (repeatable; = [zenoh] connect)")
+    net.add_argument("--zenoh-mode", choices=("peer", "client", "router"), help="= [zenoh] mode (peer)")
+    net.add_argument("--zenoh-config", metavar="FILE", help="a full zenoh JSON5 config (TLS, access control)")
+    net.add_argument("--no-multicast", action="store_true", help="no multicast scouting (fixed endpoints only)")
+    net.add_argument("--no-publish", action="store_true", help="measure without opening a Zenoh session")
     out = p.add_argument_group("output")
     out.add_argument("--log", metavar="FILE.jsonl", help="one JSON object per processed frame")
     out.add_argument("--annotate", metavar="OUT.mp4", help="write the frames with ROI, tracks, distance, speed")
+    out.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
     out.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
     return p
 
@@ -56,57 +86,162 @@ def load_config(args):
     overrides = list(args.set)
     if args.method:
         overrides.append(f"odometry.method={args.method}")
-    if args.tilt is not None:
-        overrides.append(f"mount.tilt_deg={args.tilt}")
-    return config.load(args.config, overrides)
+    tilt = args.tilt if args.tilt is not None else (args.sim_tilt if args.sim else None)
+    if tilt is not None:
+        overrides.append(f"mount.tilt_deg={tilt}")
+    if args.state_dir:
+        overrides.append(f"state.directory={json.dumps(args.state_dir)}")
+    if args.zenoh_mode:
+        overrides.append(f"zenoh.mode={json.dumps(args.zenoh_mode)}")
+    if args.listen:
+        overrides.append(f"zenoh.listen={json.dumps(args.listen)}")
+    if args.connect:
+        overrides.append(f"zenoh.connect={json.dumps(args.connect)}")
+    if args.zenoh_config:
+        overrides.append(f"zenoh.config={json.dumps(args.zenoh_config)}")
+    if args.no_multicast:
+        overrides.append("zenoh.multicast=false")
+    path = args.config or os.environ.get("CRAWLERD_CONFIG")
+    if path is None and Path(DEFAULT_CONFIG).is_file():
+        path = DEFAULT_CONFIG
+    return config.load(path, overrides)
 
 
-def replay(args, cfg) -> int:
-    from .odometry import Odometer
-    from .runner import run
-    from .sinks import Annotator, JsonlLog, Progress
+def make_replay_source(cfg, video, pts=None, fps=None):
     from .video import VideoReplay
 
-    g = cfg.geometry()
-    odometer = Odometer(g.camera, g.projection, g.roi, cfg.odometry_params())
-    source = VideoReplay(args.replay, pts=args.pts, fps=args.fps,
-                         expect_size=(cfg.camera["width"], cfg.camera["height"]))
-    sinks = []
+    return VideoReplay(video, pts=pts, fps=fps, expect_size=(cfg.camera["width"], cfg.camera["height"]))
+
+
+def make_camera_source(cfg, camera_class=None, description="camera"):
+    from .camera import Picamera2Source
+
+    c = cfg.camera
+    fov = (c["sensor_hfov_deg"], c["sensor_vfov_deg"]) if c["sensor_hfov_deg"] else None
+    return Picamera2Source(camera_class, camera_num=c["camera_num"], window=c["sensor_window"],
+                           output_size=tuple(c["output_size"]), fps=c["fps"], exposure_us=c["exposure_us"],
+                           analogue_gain=c["analogue_gain"], fov_deg=fov, line_time_us=c["line_time_us"],
+                           hflip=c["hflip"], vflip=c["vflip"], capture_timeout_s=c["capture_timeout_s"],
+                           description=description)
+
+
+def make_sim(cfg, args):
+    """hw_sim's fake Picamera2 class bound to a simulated run, and its ground truth."""
+    from hw_sim.picamera2_fake import SimWorld, make_picamera2
+
+    world = SimWorld(sensor=args.sim_sensor, tilt_deg=cfg.mount["tilt_deg"], speed_m_s=args.sim_speed,
+                     profile=args.sim_profile, seed=args.sim_seed,
+                     pipe_diameter_m=cfg.mount["pipe_diameter_m"], car_width_m=cfg.mount["car_width_m"],
+                     offset_m=cfg.mount["camera_offset_m"], camera_height_m=cfg.mount["height_m"])
+    return make_picamera2(world), world
+
+
+def make_link(cfg, daemon_ref):
+    from .link import ZenohLink, make_zenoh_config
+
+    z = cfg.zenoh
+    conf = make_zenoh_config(z["mode"], z["listen"], z["connect"], z["config"], z["multicast"])
+    return ZenohLink(cfg.name, conf, on_command=lambda req: daemon_ref[0].commands.submit(req))
+
+
+def run(args, cfg) -> int:
+    from .checkpoint import Checkpoint
+    from .daemon import Daemon
+    from .leds import BrightnessLoop, Leds, NoLeds
+    from .sdnotify import Notifier
+    from .sinks import Annotator, JsonlLog, Progress
+
+    mode = "replay" if args.replay else "sim" if args.sim else "camera"
+    truth = None
+    pin_factory = None
+    if mode == "replay":
+        source = make_replay_source(cfg, args.replay, args.pts, args.fps)
+    elif mode == "sim":
+        from gpiozero.pins.mock import MockFactory, MockPWMPin
+
+        camera_class, world = make_sim(cfg, args)
+        truth = world.true_distance_m
+        pin_factory = MockFactory(pin_class=MockPWMPin)
+        source = make_camera_source(cfg, camera_class, description="sim")
+    else:
+        source = make_camera_source(cfg)
+
     stopping = []
-
-    def on_signal(signum, _frame):
-        stopping.append(signum)
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    old = {s: signal.signal(s, lambda signum, _f: stopping.append(signum))
+           for s in (signal.SIGINT, signal.SIGTERM)}
+    publish = (mode != "replay" or args.publish) and not args.no_publish
+    daemon_ref = [None]
+    link = None
+    leds = NoLeds()
+    notifier = Notifier() if mode != "replay" else None
     try:
-        with source:
-            logging.getLogger(PROG).info("%s", source.description)
+        try:
+            source.__enter__()
+        except CameraUnavailable as exc:
+            fallback = cfg.camera["fallback_video"]
+            if mode != "camera" or not fallback:
+                raise
+            _log.error("CAMERA UNAVAILABLE (%s); FALLING BACK TO RECORDING %s", exc, fallback)
+            mode = "replay-fallback"
+            source = make_replay_source(cfg, fallback, cfg.camera["fallback_pts"], cfg.camera["fallback_fps"])
+            source.__enter__()
+            source.description = f"FALLBACK {source.description} (camera: {exc})"
+        try:
+            if cfg.leds["pins"] and mode != "replay":
+                leds = Leds(cfg.leds["pins"], brightness=cfg.leds["brightness"],
+                            frequency_hz=cfg.leds["frequency_hz"], active_high=cfg.leds["active_high"],
+                            pin_factory=pin_factory)
+            if publish:
+                link = make_link(cfg, daemon_ref).open()
+            sinks = []
             if args.log:
                 sinks.append(JsonlLog(args.log))
             if args.annotate:
-                sinks.append(Annotator(args.annotate, fps=args.fps or 30.0))
+                sinks.append(Annotator(args.annotate, fps=args.fps or (
+                    30.0 if mode.startswith("replay") else cfg.camera["fps"])))
             sinks.append(Progress())
+            checkpoint = Checkpoint(cfg.state["directory"], cfg.state["checkpoint_s"]) if mode != "replay" else None
+            brightness = BrightnessLoop(target=cfg.leds["target_grey"]) if cfg.leds["auto_brightness"] else None
+            daemon = Daemon(cfg, source, mode=mode, leds=leds, link=link, notifier=notifier,
+                            checkpoint=checkpoint, truth=truth, brightness=brightness,
+                            stop=lambda: bool(stopping), max_frames=args.max_frames, sinks=sinks,
+                            realtime=args.realtime)
+            daemon_ref[0] = daemon
             try:
-                stats = run(source, odometer, sinks, realtime=args.realtime,
-                            stop=lambda: bool(stopping), max_frames=args.max_frames)
+                stats = daemon.run()
             finally:
                 for sink in sinks:
                     sink.close()
+        finally:
+            source.__exit__(None, None, None)
     finally:
+        leds.close()
+        if link is not None:
+            link.close()
+        if notifier is not None:
+            notifier.close()
         for s, h in old.items():
             signal.signal(s, h)
+
     stats.extra.update(source=source.description, method=cfg.odometry["method"])
-    if source.warnings:
-        stats.extra["warnings"] = source.warnings
+    warnings = list(getattr(source, "warnings", []))
+    if warnings:
+        stats.extra["warnings"] = warnings
+    if truth is not None and getattr(source, "last_sensor_ns", None) is not None:
+        stats.extra["sim_true_distance_m"] = round(truth(source.last_sensor_ns), 6)
     if stats.frames == 0 and not stats.error:
-        stats.error = f"video {args.replay!r} holds no decodable frames"
-    summary = stats.summary(odometer)
-    print(json.dumps(summary), flush=True)
+        stats.error = "no frames were processed"
+    print(json.dumps(daemon.summary()), flush=True)
     if stats.error:
         print(f"{PROG}: error: {stats.error}", file=sys.stderr)
         return 1
-    for w in source.warnings:
+    for w in warnings:
         print(f"{PROG}: warning: {w}", file=sys.stderr)
+    return 0
+
+
+def check_config(cfg) -> int:
+    print(json.dumps(cfg.summary(), indent=2))
     return 0
 
 
@@ -117,14 +252,8 @@ def main(argv=None) -> int:
     try:
         cfg = load_config(args)
         if args.check_config:
-            print(json.dumps(cfg.summary(), indent=2))
-            return 0
-        if args.replay:
-            return replay(args, cfg)
-        print(f"{PROG}: error: nothing to run; pass --replay FILE (or --check-config)", file=sys.stderr)
-        return 2
-    except BadConfig as exc:
-        return _fail(exc, 2)
+            return check_config(cfg)
+        return run(args, cfg)
     except CrawlerError as exc:
         return _fail(exc, 2)
     except KeyboardInterrupt:

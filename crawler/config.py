@@ -28,6 +28,12 @@ SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "vfov_deg": (_NUM, 37.16), "hfov_deg": (_NUM, 53.50),
         "calibration": (str, None), "distortion": (list, None),
         "readout_ms": (_NUM, 0.0), "hflip": (bool, False), "vflip": (bool, False),
+        # live camera (crawlerd without --replay): see docs/deploy.md
+        "camera_num": (int, 0), "sensor_window": (list, None), "output_size": (list, [240, 240]),
+        "fps": (_NUM, 60.0), "exposure_us": (int, 1500), "analogue_gain": (_NUM, 4.0),
+        "sensor_hfov_deg": (_NUM, None), "sensor_vfov_deg": (_NUM, None), "line_time_us": (_NUM, None),
+        "capture_timeout_s": (_NUM, 2.0),
+        "fallback_video": (str, None), "fallback_pts": (str, None), "fallback_fps": (_NUM, None),
     },
     "mount": {
         "pipe_diameter_m": (_NUM, 0.30), "car_width_m": (_NUM, 0.151),
@@ -40,6 +46,15 @@ SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "max_baseline_px": (_NUM, 120.0), "speed_window_s": (_NUM, 0.25),
         "max_incidence_deg": (_NUM, 70.0),
     },
+    "leds": {
+        "pins": (list, []), "brightness": (_NUM, 0.8), "frequency_hz": (_NUM, 1000.0),
+        "active_high": (bool, True), "auto_brightness": (bool, False), "target_grey": (_NUM, 110.0),
+    },
+    "zenoh": {
+        "mode": (str, "peer"), "listen": (list, []), "connect": (list, []), "config": (str, None),
+        "multicast": (bool, True), "publish_hz": (_NUM, 30.0), "status_hz": (_NUM, 1.0),
+    },
+    "state": {"directory": (str, "/var/lib/crawlerd"), "checkpoint_s": (_NUM, 1.0)},
 }
 
 
@@ -134,6 +149,9 @@ class Config:
         self.camera = raw["camera"]
         self.mount = raw["mount"]
         self.odometry = raw["odometry"]
+        self.leds = raw["leds"]
+        self.zenoh = raw["zenoh"]
+        self.state = raw["state"]
         self._validate()
 
     def _validate(self):
@@ -171,7 +189,45 @@ class Config:
                 raise BadConfig(f"[odometry] {k} = {o[k]} must be > 0")
         if not 0 < o["max_incidence_deg"] < 90:
             raise BadConfig(f"[odometry] max_incidence_deg = {o['max_incidence_deg']} must be between 0 and 90")
+        self._validate_live()
         self.geometry()   # impossible geometry is refused at load time
+
+    def _validate_live(self):
+        c, l, z, st = self.camera, self.leds, self.zenoh, self.state
+        size = c["output_size"]
+        if len(size) != 2 or not all(isinstance(v, int) and 32 <= v <= 2048 and v % 2 == 0 for v in size):
+            raise BadConfig(f"[camera] output_size = {size!r} must be [width, height], even, 32..2048")
+        win = c["sensor_window"]
+        if win is not None and (len(win) != 4 or not all(isinstance(v, int) and v >= 0 for v in win)):
+            raise BadConfig(f"[camera] sensor_window = {win!r} must be [x, y, w, h] in native pixels "
+                            "of the sensor's active area")
+        if not 0 < c["fps"] <= 1000:
+            raise BadConfig(f"[camera] fps = {c['fps']} must be between 0 and 1000")
+        if not 1 <= c["exposure_us"] <= 1_000_000:
+            raise BadConfig(f"[camera] exposure_us = {c['exposure_us']} must be between 1 and 1000000")
+        if c["exposure_us"] > 1e6 / c["fps"]:
+            raise BadConfig(f"[camera] exposure_us = {c['exposure_us']} is longer than a frame at "
+                            f"fps = {c['fps']:g}; shorten it (motion blur) or lower fps")
+        if not 1.0 <= c["analogue_gain"] <= 64.0:
+            raise BadConfig(f"[camera] analogue_gain = {c['analogue_gain']} must be between 1 and 64")
+        if (c["sensor_hfov_deg"] is None) != (c["sensor_vfov_deg"] is None):
+            raise BadConfig("[camera] sensor_hfov_deg and sensor_vfov_deg go together; set both or neither")
+        if not all(isinstance(p, int) and 0 <= p <= 27 for p in l["pins"]):
+            raise BadConfig(f"[leds] pins = {l['pins']!r} must be BCM GPIO numbers 0..27, e.g. [12, 13]")
+        if not 0 <= l["brightness"] <= 1:
+            raise BadConfig(f"[leds] brightness = {l['brightness']} must be between 0 and 1")
+        if not 0 <= l["target_grey"] <= 255:
+            raise BadConfig(f"[leds] target_grey = {l['target_grey']} must be between 0 and 255")
+        if z["mode"] not in ("peer", "client", "router"):
+            raise BadConfig(f"[zenoh] mode = {z['mode']!r} must be peer, client or router")
+        for k in ("listen", "connect"):
+            if not all(isinstance(e, str) and "/" in e for e in z[k]):
+                raise BadConfig(f"[zenoh] {k} = {z[k]!r} must be endpoints like 'tcp/192.168.1.10:7447'")
+        for k in ("publish_hz", "status_hz"):
+            if not 0 < z[k] <= 1000:
+                raise BadConfig(f"[zenoh] {k} = {z[k]} must be between 0 and 1000")
+        if not st["checkpoint_s"] > 0:
+            raise BadConfig(f"[state] checkpoint_s = {st['checkpoint_s']} must be > 0")
 
     def default_roi(self) -> tuple[int, int, int, int]:
         """The thesis's window: a square under the centre row, centred across, as tall as half the frame."""

@@ -36,6 +36,7 @@ class OdometryParams:
     speed_window_s: float = 0.25      # least-squares speed over this much recent history
     spread_jump: float = 4.0          # tracks disagreeing this many times more than lately: corrupt frame
     spread_floor_px: float = 0.1      # ...unless they still agree within this
+    max_spread_refusals: int = 2      # then believe the new level (the scene changed, not the frame)
 
 
 @dataclass
@@ -163,7 +164,10 @@ class Odometer:
         self._last_lat = 0.0
         self._velocity = 0.0
         self._speed = SpeedFilter(self.params.speed_window_s)
-        self._spreads: deque[float] = deque(maxlen=15)   # recent per-frame track disagreement
+        # recent track disagreement per unit of displacement: model errors grow with the step, a
+        # corrupt frame jumps
+        self._spreads: deque[float] = deque(maxlen=15)
+        self._refusals = 0
 
     def update(self, frame: np.ndarray, t_s: float) -> Estimate:
         """Process one full grey frame (only its ROI is read) taken at t_s seconds."""
@@ -287,8 +291,11 @@ class Odometer:
                 lat, inl_l, _ = robust_step(lateral, floor, p.mad_k)
                 both = inl & inl_l
                 n_in = int(both.sum())
+                ratio = sigma / (abs(step) + self.m_per_px)
                 usual = np.median(self._spreads) if self._spreads else np.inf
-                calm = sigma <= max(p.spread_jump * usual, p.spread_floor_px * self.m_per_px)
+                calm = (ratio <= p.spread_jump * usual or sigma <= p.spread_floor_px * self.m_per_px
+                        or self._refusals >= p.max_spread_refusals)
+                self._refusals = 0 if calm else self._refusals + 1
                 if n_in >= p.min_tracks and n_in >= p.min_inlier_share * n_tracked and calm:
                     step = float(axial[both].mean())
                     lat = float(lateral[both].mean())
@@ -300,7 +307,7 @@ class Odometer:
         if dt_prev > 0:
             self._velocity = (step - self._last_step) / dt_prev
         self._last_step, self._last_lat = step, lat
-        self._spreads.append(sigma)
+        self._spreads.append(sigma / (abs(step) + self.m_per_px))
         self._last_good_t = t_s
         self.distance = kf.distance + step
         self.lateral = kf.lateral + lat

@@ -1,12 +1,9 @@
-"""The frame loop shared by replay, simulation and the live camera: frames in, estimates to sinks."""
+"""Bookkeeping of a run (the closing summary line) and real-time pacing of recorded frames."""
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-
-from .errors import CrawlerError
-from .odometry import Odometer
 
 
 @dataclass
@@ -33,13 +30,13 @@ class RunStats:
         if est.speed_m_s is not None:
             self.max_speed = max(self.max_speed, abs(est.speed_m_s))
 
-    def summary(self, odometer: Odometer) -> dict:
+    def summary(self, distance_m: float, lateral_m: float) -> dict:
         duration = (self.last_t - self.first_t) if self.frames else 0.0
         out = {
             "frames": self.frames,
             "duration_s": round(duration, 6),
-            "distance_m": round(odometer.distance, 6),
-            "lateral_m": round(odometer.lateral, 6),
+            "distance_m": round(distance_m, 6),
+            "lateral_m": round(lateral_m, 6),
             "fps_processed": round(self.frames / self.wall_s, 2) if self.wall_s > 0 else None,
             "tracking_share": round(self.tracked / self.frames, 4) if self.frames else 0.0,
             "lost_frames": self.frames - self.tracked,
@@ -52,32 +49,17 @@ class RunStats:
         return out
 
 
-def run(source, odometer: Odometer, sinks=(), *, realtime: bool = False, stop=None,
-        max_frames: int | None = None, clock=time.monotonic) -> RunStats:
-    """Feed every frame of an entered source through the odometer into the sinks.
 
-    A source that fails mid-way ends the run with the error recorded; what was measured up to the
-    break is kept. `stop()` returning True ends the run between frames (signals).
-    """
-    stats = RunStats()
-    start = clock()
-    t0 = None
-    try:
-        for frame in source.frames():
-            if realtime:
-                if t0 is None:
-                    t0 = clock() - frame.t_s
-                delay = t0 + frame.t_s - clock()
-                if delay > 0:
-                    time.sleep(delay)
-            est = odometer.update(frame.gray, frame.t_s)
-            stats.add(est)
-            for sink in sinks:
-                sink.write(frame, est, odometer)
-            if (stop is not None and stop()) or (max_frames is not None and stats.frames >= max_frames):
-                break
-    except CrawlerError as exc:
-        stats.error = str(exc)
-    finally:
-        stats.wall_s = clock() - start
-    return stats
+class Pacer:
+    """Sleeps so frames are handed on no faster than their timestamps (replay --realtime)."""
+
+    def __init__(self, clock=time.monotonic, sleep=time.sleep):
+        self.clock, self.sleep = clock, sleep
+        self._t0 = None
+
+    def wait(self, t_s: float):
+        if self._t0 is None:
+            self._t0 = self.clock() - t_s
+        delay = self._t0 + t_s - self.clock()
+        if delay > 0:
+            self.sleep(delay)

@@ -110,3 +110,29 @@ def test_speed_filter_is_a_least_squares_slope():
     assert v == pytest.approx(0.3)
     f.reset()
     assert f.update(0.0, 0.0) is None
+
+
+def test_model_mismatch_from_standstill_is_not_mistaken_for_corrupt_frames(texture):
+    # the flat synthetic wall seen through the cylinder model: per-feature errors grow with the
+    # step, smoothly; the corrupt-frame gate must not lock tracking out as the car starts
+    odo = Odometer(CAM, make_projection("cylinder", MOUNT), ROI)
+    offsets = np.concatenate([np.zeros(10), 0.15 * np.arange(1, 50) ** 2])[:50]
+    est = [odo.update(view(texture, off), i / 30) for i, off in enumerate(offsets)]
+    assert all(e.tracking for e in est)
+
+
+def test_a_frame_whose_tracks_suddenly_disagree_is_refused(texture):
+    odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
+    for i in range(12):
+        odo.update(view(texture, 6.0 * i), i / 30)
+    held = odo.distance
+    bad = view(texture, 72.0)
+    # a wobbling, half-decoded frame: every block a little off in its own direction
+    rng = np.random.default_rng(3)
+    field = [cv2.resize(rng.uniform(-2, 2, (6, 8)).astype(np.float32), (640, 480)) for _ in range(2)]
+    gx, gy = np.meshgrid(np.arange(640, dtype=np.float32), np.arange(480, dtype=np.float32))
+    bad = cv2.remap(bad, gx + field[0], gy + field[1], cv2.INTER_LINEAR)
+    e = odo.update(bad, 12 / 30)
+    assert not e.tracking and odo.distance == held
+    e = odo.update(view(texture, 78.0), 13 / 30)
+    assert e.tracking and odo.distance == pytest.approx(78.0 * M_PER_PX, abs=2e-5)

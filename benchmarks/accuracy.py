@@ -1,0 +1,126 @@
+"""Accuracy of crawlerd --replay on a suite of hw_sim runs: true vs measured distance per method.
+
+    python benchmarks/accuracy.py [--out DIR] [--jobs N] [--quick] [--markdown]
+
+Renders each case once (cached in --out), replays it with the pixel, plane and cylinder methods and
+prints a table of errors in percent of the path length. Not a test: it prints figures (docs/accuracy.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+SHAKY = dict(bounce_mm=1.0, pitch_jitter_deg=0.3, roll_deg=3.0, sway_mm=2.0)
+LIGHT = dict(lighting=True, vignetting=True, noise_sigma=2.0, flicker_amp=0.1)
+
+# name: (SimConfig fields, extra crawlerd --set overrides)
+CASES = {
+    "thesis-0deg-0.04": (dict(tilt_deg=0, speed_m_s=0.04, duration_s=20), []),
+    "thesis-24deg-0.04": (dict(tilt_deg=24, speed_m_s=0.04, duration_s=20), []),
+    "thesis-40deg-0.04": (dict(tilt_deg=40, speed_m_s=0.04, duration_s=20), []),
+    "0deg-0.2": (dict(tilt_deg=0, speed_m_s=0.2, duration_s=8), []),
+    "24deg-0.3": (dict(tilt_deg=24, speed_m_s=0.3, duration_s=8), []),
+    "40deg-0.4": (dict(tilt_deg=40, speed_m_s=0.4, duration_s=8), []),
+    "0deg-0.5": (dict(tilt_deg=0, speed_m_s=0.5, duration_s=6), []),
+    "40deg-0.5": (dict(tilt_deg=40, speed_m_s=0.5, duration_s=6), []),
+    "low-texture-24deg-0.3": (dict(tilt_deg=24, speed_m_s=0.3, duration_s=8, contrast=0.35, seed=5), []),
+    "other-wall-0deg-0.3": (dict(tilt_deg=0, speed_m_s=0.3, duration_s=8, seed=11), []),
+    "bounce-jitter-24deg-0.3": (dict(tilt_deg=24, speed_m_s=0.3, duration_s=8, seed=2, **SHAKY), []),
+    "lighting-noise-40deg-0.3": (dict(tilt_deg=40, speed_m_s=0.3, duration_s=8, seed=3, **LIGHT), []),
+    "blur-0deg-0.4": (dict(tilt_deg=0, speed_m_s=0.4, duration_s=6, exposure_ms=2.0, seed=4), []),
+    "rolling-shutter-90fps-0.4": (dict(tilt_deg=0, speed_m_s=0.4, duration_s=5, fps=90, readout_ms=10.0,
+                                       seed=6), ["camera.readout_ms=10.0"]),
+    "stop-and-go-24deg": (dict(tilt_deg=24, profile="stopgo", speed_m_s=0.3, duration_s=10, seed=7), []),
+    "reverse-0deg": (dict(tilt_deg=0, profile="reverse", speed_m_s=0.25, duration_s=10, seed=8), []),
+    "dropped-frames-24deg-0.3": (dict(tilt_deg=24, speed_m_s=0.3, duration_s=8, drop_prob=0.05, seed=9), []),
+}
+QUICK = ["0deg-0.2", "24deg-0.3", "40deg-0.4"]
+METHODS = ("pixel", "plane", "cylinder")
+
+
+def render(out: Path, name: str, fields: dict) -> Path:
+    from hw_sim import SimConfig, write_run
+
+    json_path = out / f"{name}.json"
+    cfg = SimConfig(**fields)
+    if json_path.exists() and json.loads(json_path.read_text())["config"] == json.loads(
+            json.dumps(cfg.to_dict())):
+        return json_path
+    write_run(cfg, out, name)
+    return json_path
+
+
+def replay(h264: Path, overrides: list[str]) -> dict:
+    from crawler import config
+    from crawler.daemon import Daemon
+    from crawler.leds import NoLeds
+    from crawler.video import VideoReplay
+
+    cfg = config.load(None, overrides)
+    with VideoReplay(h264) as src:
+        daemon = Daemon(cfg, src, mode="replay", leds=NoLeds())
+        daemon.run()
+    return daemon.summary()
+
+
+def measure(args) -> dict:
+    out, name = args
+    fields, extra = CASES[name]
+    meta = json.loads(render(out, name, fields).read_text())
+    row = {"case": name, "tilt": fields.get("tilt_deg", 0), "speed": fields.get("speed_m_s"),
+           "fps": meta["fps"], "frames": meta["frames"], "true_m": meta["true_distance_m"],
+           "path_m": meta["path_length_m"]}
+    for method in METHODS:
+        t0 = time.perf_counter()
+        s = replay(out / f"{name}.h264", [f"mount.tilt_deg={row['tilt']}", f"odometry.method={method}", *extra])
+        row[method] = s["distance_m"]
+        row[f"{method}_err_pct"] = 100 * (s["distance_m"] - meta["true_distance_m"]) / meta["path_length_m"]
+        row[f"{method}_lost"] = s["lost_frames"]
+        row[f"{method}_fps"] = s["frames"] / (time.perf_counter() - t0)
+    return row
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=str(ROOT / "out" / "accuracy"), help="where rendered runs are cached")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}")
+    ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    names = QUICK if args.quick else list(CASES)
+    t0 = time.time()
+    with ProcessPoolExecutor(args.jobs) as pool:
+        rows = []
+        for row in pool.map(measure, [(out, n) for n in names]):
+            rows.append(row)
+            print(f"[{time.time() - t0:6.0f} s] {row['case']:28s} cylinder {row['cylinder_err_pct']:+.4f} %",
+                  file=sys.stderr)
+    head = ["case", "tilt", "m/s", "fps", "true m", "pixel %", "plane %", "cylinder %", "lost"]
+    fmt = "| {} |" if args.markdown else "{}"
+    sep = " | " if args.markdown else "  "
+    print(fmt.format(sep.join(head)))
+    if args.markdown:
+        print("|" + "---|" * len(head))
+    for r in rows:
+        cells = [r["case"], f"{r['tilt']:g}", f"{r['speed']:g}", f"{r['fps']:g}", f"{r['true_m']:.4f}",
+                 f"{r['pixel_err_pct']:+.3f}", f"{r['plane_err_pct']:+.3f}", f"{r['cylinder_err_pct']:+.4f}",
+                 str(r["cylinder_lost"])]
+        print(fmt.format(sep.join(cells)))
+    for m in METHODS:
+        errs = [abs(r[f"{m}_err_pct"]) for r in rows]
+        print(f"{m:9s} mean |error| {sum(errs) / len(errs):.4f} %   max {max(errs):.4f} %")
+    (out / "results.json").write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()

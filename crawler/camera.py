@@ -1,0 +1,273 @@
+"""The CSI camera through picamera2, on a cropped sensor window, as a FrameSource.
+
+Only the sensor mode raises the frame rate (ScalerCrop is an ISP crop), so the plan picks the fastest
+mode whose field of view covers the wanted window, then crops the ISP to exactly that window and scales
+it to a small YUV420 output whose Y plane the odometry reads as it comes. The same plan gives the
+odometry the exact intrinsics of the output (mode crop, binning, ScalerCrop and scale) and the rolling
+shutter readout of the window.
+
+picamera2 is imported only when the camera is opened: it exists only on Raspberry Pi OS (apt
+python3-picamera2). The camera class is injectable, so `--sim` and tests pass hw_sim's fake.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+from .errors import BadConfig, CameraUnavailable, CrawlerError
+from .geometry import Camera
+from .ports import Frame
+
+_log = logging.getLogger(__name__)
+
+INSTALL_HINT = ("picamera2 is not installed; on Raspberry Pi OS run 'sudo apt install python3-picamera2' "
+                "and create the venv with 'python3 -m venv --system-site-packages' (see docs/deploy.md); "
+                "off the Pi use --sim or --replay FILE")
+
+# Lens field of view across the full active pixel array (datasheets), by libcamera Model name.
+SENSOR_FOV_DEG = {
+    "ov5647": (53.50, 41.41),
+    "imx219": (62.2, 48.8),
+    "imx708": (66.0, 41.0), "imx708_noir": (66.0, 41.0),
+    "imx708_wide": (102.0, 67.0), "imx708_wide_noir": (102.0, 67.0),
+}
+# Minimum vertical blanking lines of each sensor's driver: line time = 1 / (fps_max * (rows + vblank)).
+SENSOR_VBLANK_MIN = {"ov5647": 24, "imx219": 32, "imx708": 40}
+
+
+class CameraStalled(CrawlerError, TimeoutError):
+    """The camera stopped delivering frames."""
+
+
+@dataclass(frozen=True)
+class WindowPlan:
+    """How the sensor is driven and what the odometry then sees."""
+
+    mode: dict                       # the chosen picamera2 sensor mode
+    scaler_crop: tuple[int, int, int, int]   # ISP crop, native pixels of the active area
+    output_size: tuple[int, int]
+    fps: float
+    readout_s: float                 # top output row to bottom output row
+    camera: Camera                   # intrinsics of the output frames
+
+    @property
+    def frame_duration_us(self) -> int:
+        return int(round(1e6 / self.fps))
+
+    def describe(self) -> dict:
+        x, y, w, h = self.scaler_crop
+        return {"sensor_mode": list(self.mode["size"]), "mode_fps": self.mode["fps"],
+                "mode_crop": list(self.mode["crop_limits"]), "scaler_crop": [x, y, w, h],
+                "output_size": list(self.output_size), "fps": round(self.fps, 3),
+                "readout_ms": round(self.readout_s * 1000, 4)}
+
+
+def default_window(modes, active_size, output_size, vflip: bool = False):
+    """The thesis's view on the sensor: a window of the output's aspect just under the centre row,
+    centred across (above the centre in sensor rows if the camera is mounted upside down), as large
+    as the fastest mode that can deliver output_size without upscaling allows, at most half the
+    array tall."""
+    aw, ah = active_size
+    ow, oh = output_size
+    for mode in sorted(modes, key=lambda m: -m["fps"]):
+        mx, my, mw, mh = mode["crop_limits"]
+        centre = ah // 2
+        room_h = (centre - my) if vflip else (my + mh - centre)
+        h = min(ah // 2, room_h, int(mw * oh / ow))
+        w = int(h * ow / oh)
+        h, w = h & ~1, w & ~1
+        if h <= 0 or w * mode["size"][0] / mw < ow or h * mode["size"][1] / mh < oh:
+            continue
+        x = max(mx, min(aw // 2 - w // 2, mx + mw - w)) & ~1
+        y = centre - h if vflip else centre
+        return (x, y, w, h)
+    raise BadConfig(f"no sensor mode can deliver [camera] output_size = {list(output_size)}; "
+                    "choose a smaller output_size or set [camera] sensor_window")
+
+
+def _contains(outer, inner) -> bool:
+    ox, oy, ow, oh = outer
+    x, y, w, h = inner
+    return ox <= x and oy <= y and x + w <= ox + ow and y + h <= oy + oh
+
+
+def plan_window(modes: list[dict], active_size, window, output_size, fps: float,
+                fov_deg, vblank_lines: int = 0, line_time_s: float | None = None,
+                hflip: bool = False, vflip: bool = False) -> WindowPlan:
+    """Choose the sensor mode and ScalerCrop for a window of the active array.
+
+    The fastest mode whose crop covers the window wins; among equally fast ones, the one that keeps
+    more sensor pixels across the window (less binning). A mode that would have to upscale the window
+    is taken only when no other covers it.
+    """
+    if fps <= 0:
+        raise BadConfig(f"[camera] fps = {fps} must be > 0")
+    aw, ah = active_size
+    if window is None:
+        window = default_window(modes, active_size, output_size, vflip)
+    x, y, w, h = (int(v) for v in window)
+    if w <= 0 or h <= 0 or not _contains((0, 0, aw, ah), (x, y, w, h)):
+        raise BadConfig(f"[camera] sensor_window = {[x, y, w, h]} must lie inside the active pixel "
+                        f"array (0, 0, {aw}, {ah})")
+    ow, oh = output_size
+    covering = [m for m in modes if _contains(m["crop_limits"], (x, y, w, h))]
+    if not covering:
+        raise BadConfig(f"[camera] sensor_window = {[x, y, w, h]} is not covered by any sensor mode "
+                        f"(mode crops: {[tuple(m['crop_limits']) for m in modes]}); move it toward the centre")
+
+    def density(m):   # mode pixels per native pixel across
+        return m["size"][0] / m["crop_limits"][2]
+
+    sharp = [m for m in covering if w * density(m) >= ow and h * m["size"][1] / m["crop_limits"][3] >= oh]
+    pool = sharp or covering
+    mode = max(pool, key=lambda m: (round(m["fps"], 1), density(m)))
+    if not sharp:
+        _log.warning("sensor mode %s must upscale the %dx%d window to %dx%d; a smaller output_size "
+                     "would be as sharp", mode["size"], w, h, ow, oh)
+    use_fps = min(fps, mode["fps"])
+    if use_fps < fps:
+        _log.warning("[camera] fps = %g exceeds the %s mode's %.1f fps; running at %.1f",
+                     fps, mode["size"], mode["fps"], use_fps)
+    rows_per_native = mode["size"][1] / mode["crop_limits"][3]
+    if line_time_s is None:
+        line_time_s = 1.0 / (mode["fps"] * (mode["size"][1] + vblank_lines))
+    readout = (h * rows_per_native - 1) * line_time_s   # first to last sensor row of the window
+    hfov, vfov = fov_deg
+    full = Camera.from_fov(aw, ah, vfov, hfov)
+    cam = full.window(x, y, w, h, ow, oh)
+    cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, hflip=hflip, vflip=vflip,
+                 readout_s=readout)
+    return WindowPlan(mode=mode, scaler_crop=(x, y, w, h), output_size=(ow, oh), fps=use_fps,
+                      readout_s=readout, camera=cam)
+
+
+def import_picamera2():
+    """The real Picamera2 class, or CameraUnavailable with the install recipe."""
+    try:
+        from picamera2 import Picamera2
+    except ImportError:
+        raise CameraUnavailable(INSTALL_HINT) from None
+    return Picamera2
+
+
+class Picamera2Source:
+    """Frames from a (real or fake) Picamera2 on a planned window; `frames()` yields Y-plane views."""
+
+    def __init__(self, camera_class=None, *, camera_num: int = 0, window=None, output_size=(240, 240),
+                 fps: float = 60.0, exposure_us: int = 2000, analogue_gain: float = 4.0,
+                 fov_deg=None, line_time_us: float | None = None, hflip: bool = False,
+                 vflip: bool = False, capture_timeout_s: float = 2.0, description: str = "camera"):
+        self.camera_class = camera_class
+        self.camera_num = camera_num
+        self.window = window
+        self.output_size = tuple(output_size)
+        self.fps = fps
+        self.exposure_us = int(exposure_us)
+        self.analogue_gain = float(analogue_gain)
+        self.fov_deg = fov_deg
+        self.line_time_s = None if line_time_us is None else line_time_us / 1e6
+        self.hflip, self.vflip = hflip, vflip
+        self.capture_timeout_s = capture_timeout_s
+        self.description = description
+        self.plan: WindowPlan | None = None
+        self.model = None
+        self.cam = None
+        self.frames_read = 0
+        self.last_sensor_ns = None
+        self.warnings: list[str] = []
+
+    def __enter__(self):
+        cls = self.camera_class or import_picamera2()
+        try:
+            info = cls.global_camera_info()
+        except Exception as exc:
+            raise CameraUnavailable(f"libcamera cannot list cameras: {exc}") from None
+        if not info:
+            raise CameraUnavailable("no CSI camera found; check the ribbon cable and that the camera is "
+                                    "enabled (rpicam-hello --list-cameras), or run with --sim / --replay FILE")
+        if self.camera_num >= len(info):
+            raise CameraUnavailable(f"[camera] camera_num = {self.camera_num} but only {len(info)} "
+                                    "camera(s) found")
+        try:
+            self.cam = cls(self.camera_num)
+        except (RuntimeError, IndexError, OSError) as exc:
+            raise CameraUnavailable(f"camera {self.camera_num} cannot be opened ({exc}); is another "
+                                    "process (rpicam-vid, a second crawlerd) using it?") from None
+        try:
+            self._configure()
+        except Exception:
+            self._close()
+            raise
+        return self
+
+    def _configure(self):
+        cam = self.cam
+        props = cam.camera_properties
+        self.model = str(props.get("Model", "unknown"))
+        active = props.get("PixelArrayActiveAreas") or [(0, 0) + tuple(props["PixelArraySize"])]
+        active_size = tuple(active[0][2:])
+        fov = self.fov_deg or SENSOR_FOV_DEG.get(self.model)
+        if fov is None:
+            raise BadConfig(f"camera model {self.model!r} has no known field of view; set [camera] "
+                            "sensor_hfov_deg and sensor_vfov_deg (or a calibration file)")
+        modes = cam.sensor_modes            # reconfigures the camera: read before configure()
+        window = self.window
+        base_model = self.model.split("_")[0]
+        self.plan = plan_window(modes, active_size, window, self.output_size, self.fps, fov,
+                                SENSOR_VBLANK_MIN.get(base_model, 0), self.line_time_s,
+                                self.hflip, self.vflip)
+        p = self.plan
+        d = p.frame_duration_us
+        controls = {"FrameDurationLimits": (d, d), "ExposureTime": self.exposure_us,
+                    "AnalogueGain": self.analogue_gain, "ScalerCrop": p.scaler_crop}
+        config = cam.create_video_configuration(
+            main={"size": p.output_size, "format": "YUV420"}, raw=None,
+            sensor={"output_size": tuple(p.mode["size"]), "bit_depth": p.mode["bit_depth"]},
+            controls=controls, buffer_count=4)
+        cam.configure(config)
+        cam.start()
+        self.description = (f"{self.description} {self.model} mode {p.mode['size'][0]}x{p.mode['size'][1]} "
+                            f"crop {list(p.scaler_crop)} -> {p.output_size[0]}x{p.output_size[1]} "
+                            f"@ {p.fps:.1f} fps")
+        _log.info("%s", self.description)
+
+    def set_controls(self, controls: dict):
+        if self.cam is not None:
+            self.cam.set_controls(controls)
+
+    def frames(self):
+        w, h = self.output_size
+        t0 = None
+        n = 0
+        while True:
+            try:
+                request = self.cam.capture_request(wait=self.capture_timeout_s)
+            except TimeoutError:
+                raise CameraStalled(f"camera delivered no frame for {self.capture_timeout_s:g} s") from None
+            try:
+                yuv = request.make_array("main")
+                md = request.get_metadata()
+            finally:
+                request.release()
+            ts = md.get("SensorTimestamp")
+            if ts is None:
+                raise CrawlerError("camera metadata carries no SensorTimestamp")
+            if t0 is None:
+                t0 = ts
+            self.last_sensor_ns = ts
+            yield Frame(n, (ts - t0) / 1e9, yuv[:h, :w])
+            n += 1
+            self.frames_read = n
+
+    def _close(self):
+        cam, self.cam = self.cam, None
+        if cam is not None:
+            try:
+                cam.stop()
+            finally:
+                cam.close()
+
+    def __exit__(self, *exc):
+        self._close()
+

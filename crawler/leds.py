@@ -1,0 +1,103 @@
+"""The LED drivers: PWM-dimmable, on gpiozero, with an optional loop that holds the wall's brightness.
+
+The pin factory is injected (gpiozero's `pin_factory=`): lgpio on the Pi, MockFactory in tests and
+`--sim`. gpiozero is imported only when LEDs are built.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass
+
+from .errors import BadConfig, CrawlerError
+
+_log = logging.getLogger(__name__)
+
+
+class Leds:
+    """All LED drivers at one brightness level in [0, 1]."""
+
+    def __init__(self, pins, *, brightness: float = 1.0, frequency_hz: float = 1000.0,
+                 active_high: bool = True, pin_factory=None):
+        from gpiozero import PWMLED
+        from gpiozero.exc import GPIOZeroError
+
+        if not 0.0 <= brightness <= 1.0:
+            raise BadConfig(f"[leds] brightness = {brightness} must be between 0 and 1")
+        self.brightness = float(brightness)
+        self._lock = threading.Lock()
+        self._leds = []
+        try:
+            for pin in pins:
+                self._leds.append(PWMLED(pin, active_high=active_high, initial_value=0,
+                                         frequency=frequency_hz, pin_factory=pin_factory))
+        except GPIOZeroError as exc:
+            self.close()
+            raise CrawlerError(
+                f"LED pin {pin!r} cannot be driven: {exc}; check [leds] pins, that the user is in the "
+                "'gpio' group, and that the pins support PWM (use --sim off the Pi)") from None
+        self.level = 0.0
+
+    def on(self, level: float | None = None):
+        """Light at `level` (default: the configured brightness)."""
+        self.set(self.brightness if level is None else level)
+
+    def set(self, level: float):
+        level = min(1.0, max(0.0, float(level)))
+        with self._lock:
+            for led in self._leds:
+                led.value = level
+            self.level = level
+
+    def off(self):
+        self.set(0.0)
+
+    def close(self):
+        """Switch off and free the pins; safe to call twice."""
+        with self._lock:
+            for led in self._leds:
+                try:
+                    led.value = 0
+                    led.close()
+                except Exception:   # closing must never mask the error that got us here
+                    _log.debug("closing LED failed", exc_info=True)
+            self._leds = []
+            self.level = 0.0
+
+
+class NoLeds:
+    """Stand-in when no pins are configured (replay on a PC)."""
+
+    brightness = 0.0
+    level = 0.0
+
+    def on(self, level=None):
+        pass
+
+    def set(self, level):
+        pass
+
+    def off(self):
+        pass
+
+    def close(self):
+        pass
+
+
+@dataclass
+class BrightnessLoop:
+    """Integral control of LED level toward a target mean grey of the ROI.
+
+    Pure: feed it the ROI mean each frame, apply what it returns. The gain is per frame and small, so
+    a textured wall passing by does not make the lights pump.
+    """
+
+    target: float = 110.0        # mean grey value of the ROI to hold
+    gain: float = 0.002          # level change per grey level of error per frame
+    min_level: float = 0.05
+    max_level: float = 1.0
+
+    def update(self, level: float, mean_grey: float) -> float:
+        new = level + self.gain * (self.target - mean_grey)
+        return min(self.max_level, max(self.min_level, new))

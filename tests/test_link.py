@@ -1,0 +1,114 @@
+"""The Zenoh link on real loopback sessions: topics, liveliness, control, and a network that is not there."""
+
+import json
+import threading
+
+import pytest
+
+from conftest import wait_for
+from crawler.link import CommandQueue, ZenohLink, make_zenoh_config
+from crawler.errors import BadConfig
+
+
+def query(session, selector, payload=None, timeout=3.0):
+    out = []
+    for reply in session.get(selector, payload=payload, timeout=timeout):
+        if reply.ok is not None:
+            out.append(("ok", json.loads(reply.ok.payload.to_string())))
+        else:
+            out.append(("err", json.loads(reply.err.payload.to_string())))
+    return out
+
+
+@pytest.fixture
+def link(zenoh_pair):
+    handled = []
+
+    def on_command(req):
+        handled.append(req)
+        if req["cmd"] == "boom":
+            raise ValueError("unknown cmd 'boom'")
+        return {"cmd": req["cmd"]}
+
+    lk = ZenohLink("c1", make_zenoh_config("peer", listen=zenoh_pair["listen"], multicast=False), on_command)
+    lk.open()
+    lk.handled = handled
+    try:
+        yield lk
+    finally:
+        lk.close()
+
+
+def test_topics_liveliness_and_control(link, operator):
+    got, alive = [], []
+    operator.declare_subscriber("crawler/*/distance", lambda s: got.append(json.loads(s.payload.to_string())))
+    operator.liveliness().declare_subscriber("crawler/*/alive", lambda s: alive.append(str(s.kind)), history=True)
+    assert wait_for(lambda: alive == ["SampleKind.PUT"])
+    assert wait_for(lambda: query(operator, "crawler/c1/control?cmd=status", timeout=0.5) != [])
+    for i in range(5):
+        link.publish_estimate({"t_s": i / 30, "distance_m": 0.01 * i, "speed_m_s": 0.3, "quality": 1.0,
+                               "tracking": True})
+        if i == 0:
+            wait_for(lambda: got, timeout=3)
+    assert wait_for(lambda: len(got) >= 4)
+    assert got[-1]["seq"] == 5 and got[-1]["distance_m"] == pytest.approx(0.04)
+
+    assert query(operator, "crawler/c1/control?cmd=reset") == [("ok", {"cmd": "reset", "ok": True})]
+    assert query(operator, "crawler/c1/control", payload=json.dumps({"cmd": "led", "level": 0.5})) == [
+        ("ok", {"cmd": "led", "ok": True})]
+    kind, body = query(operator, "crawler/c1/control?cmd=boom")[0]
+    assert kind == "err" and "unknown cmd" in body["error"]
+    kind, body = query(operator, "crawler/c1/control")[0]
+    assert kind == "err" and "missing cmd" in body["error"]
+    kind, body = query(operator, "crawler/c1/control", payload="{not json")[0]
+    assert kind == "err" and "not JSON" in body["error"]
+    kind, body = query(operator, "crawler/c1/control", payload="[1, 2]")[0]
+    assert kind == "err" and "JSON object" in body["error"]
+
+    link.close()
+    assert wait_for(lambda: alive[-1:] == ["SampleKind.DELETE"])
+
+
+def test_unopenable_session_keeps_measuring_and_retries(zenoh_pair):
+    import socket
+
+    host, port = zenoh_pair["listen"][0].split("/")[1].split(":")
+    blocker = socket.socket()
+    blocker.bind((host, int(port)))
+    blocker.listen()
+    lk = ZenohLink("c2", make_zenoh_config("peer", listen=zenoh_pair["listen"], multicast=False), retry_s=0.2)
+    try:
+        lk.open()
+        assert not lk.connected and "zenoh" in lk.last_error
+        lk.publish_estimate({"t_s": 0, "distance_m": 0, "speed_m_s": 0})    # a no-op, not an error
+        blocker.close()
+        assert wait_for(lambda: lk.connected, timeout=10)
+        assert lk.last_error is None
+    finally:
+        blocker.close()
+        lk.close()
+
+
+def test_bad_zenoh_settings_name_the_value(tmp_path):
+    with pytest.raises(BadConfig, match="not-an-endpoint"):
+        make_zenoh_config("peer", listen=["not-an-endpoint"])
+    with pytest.raises(BadConfig, match="no such file"):
+        make_zenoh_config(config_file=str(tmp_path / "nope.json5"))
+    bad = tmp_path / "bad.json5"
+    bad.write_text("{ mode: ")
+    with pytest.raises(BadConfig, match="not a valid zenoh config"):
+        make_zenoh_config(config_file=str(bad))
+
+
+def test_command_queue_hands_requests_to_the_loop_and_times_out():
+    q = CommandQueue(timeout_s=2.0)
+    result = {}
+    t = threading.Thread(target=lambda: result.setdefault("r", q.submit({"cmd": "status"})))
+    t.start()
+    assert wait_for(lambda: q._items)
+    q.drain(lambda req: {"answer": req["cmd"]})
+    t.join(2)
+    assert result["r"] == {"answer": "status"}
+    slow = CommandQueue(timeout_s=0.1)
+    with pytest.raises(RuntimeError, match="busy"):
+        slow.submit({"cmd": "reset"})
