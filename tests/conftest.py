@@ -1,0 +1,75 @@
+import json
+
+import pytest
+
+from hw_sim import SimConfig, write_run
+
+
+@pytest.fixture(scope="session")
+def render_run(tmp_path_factory):
+    """Render a hw_sim run once per session: render_run(name, **SimConfig fields) -> paths dict."""
+    cache = {}
+    root = tmp_path_factory.mktemp("runs")
+
+    def render(name, **kw):
+        key = (name, tuple(sorted(kw.items())))
+        if key not in cache:
+            cache[key] = write_run(SimConfig(**kw), root, name)
+            cache[key]["truth"] = json.loads(cache[key]["json"].read_text())
+        return cache[key]
+
+    return render
+
+
+@pytest.fixture
+def crawlerd(capsys):
+    """Run crawlerd's main() in-process: crawlerd(*argv) -> (exit code, summary dict or None, stderr)."""
+    from crawler.cli import main
+
+    def run(*argv):
+        rc = main([str(a) for a in argv])
+        out, err = capsys.readouterr()
+        lines = [ln for ln in out.splitlines() if ln.startswith("{")]
+        return rc, (json.loads(lines[-1]) if lines else None), err
+
+    return run
+
+
+def free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def zenoh_pair():
+    """Endpoints for a listening daemon and a connecting operator on loopback, multicast off."""
+    port = free_port()
+    return {"listen": [f"tcp/127.0.0.1:{port}"], "connect": [f"tcp/127.0.0.1:{port}"]}
+
+
+@pytest.fixture
+def operator(zenoh_pair):
+    """A second Zenoh session that connects to the daemon's endpoint; closed after the test."""
+    import zenoh
+
+    from crawler.link import make_zenoh_config
+
+    session = zenoh.open(make_zenoh_config("peer", connect=zenoh_pair["connect"], multicast=False))
+    try:
+        yield session
+    finally:
+        session.close()
+
+
+def wait_for(predicate, timeout=10.0, interval=0.05):
+    import time
+
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(interval)
+    return predicate()
