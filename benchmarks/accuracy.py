@@ -72,15 +72,16 @@ def replay(h264: Path, overrides: list[str]) -> dict:
 
 
 def measure(args) -> dict:
-    out, name = args
+    out, name, common, methods = args
     fields, extra = CASES[name]
     meta = json.loads(render(out, name, fields).read_text())
     row = {"case": name, "tilt": fields.get("tilt_deg", 0), "speed": fields.get("speed_m_s"),
            "fps": meta["fps"], "frames": meta["frames"], "true_m": meta["true_distance_m"],
            "path_m": meta["path_length_m"]}
-    for method in METHODS:
+    for method in methods:
         t0 = time.perf_counter()
-        s = replay(out / f"{name}.h264", [f"mount.tilt_deg={row['tilt']}", f"odometry.method={method}", *extra])
+        s = replay(out / f"{name}.h264",
+                   [f"mount.tilt_deg={row['tilt']}", f"odometry.method={method}", *extra, *common])
         row[method] = s["distance_m"]
         row[f"{method}_err_pct"] = 100 * (s["distance_m"] - meta["true_distance_m"]) / meta["path_length_m"]
         row[f"{method}_lost"] = s["lost_frames"]
@@ -94,17 +95,21 @@ def main(argv=None):
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help=f"only {', '.join(QUICK)}")
     ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="config override for every case, e.g. odometry.win_px=15")
+    ap.add_argument("--cases", help="comma-separated subset of the cases")
+    ap.add_argument("--methods", default=",".join(METHODS))
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    names = QUICK if args.quick else list(CASES)
+    names = QUICK if args.quick else args.cases.split(",") if args.cases else list(CASES)
     t0 = time.time()
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = []
-        for row in pool.map(measure, [(out, n) for n in names]):
+        for row in pool.map(measure, [(out, n, args.set, args.methods.split(",")) for n in names]):
             rows.append(row)
-            print(f"[{time.time() - t0:6.0f} s] {row['case']:28s} cylinder {row['cylinder_err_pct']:+.4f} %",
-                  file=sys.stderr)
+            errs = "  ".join(f"{m} {row[m + '_err_pct']:+.4f} %" for m in args.methods.split(","))
+            print(f"[{time.time() - t0:6.0f} s] {row['case']:28s} {errs}", file=sys.stderr)
     head = ["case", "tilt", "m/s", "fps", "true m", "pixel %", "plane %", "cylinder %", "lost"]
     fmt = "| {} |" if args.markdown else "{}"
     sep = " | " if args.markdown else "  "
@@ -113,10 +118,10 @@ def main(argv=None):
         print("|" + "---|" * len(head))
     for r in rows:
         cells = [r["case"], f"{r['tilt']:g}", f"{r['speed']:g}", f"{r['fps']:g}", f"{r['true_m']:.4f}",
-                 f"{r['pixel_err_pct']:+.3f}", f"{r['plane_err_pct']:+.3f}", f"{r['cylinder_err_pct']:+.4f}",
-                 str(r["cylinder_lost"])]
+                 *(f"{r[m + '_err_pct']:+.4f}" if m + "_err_pct" in r else "-" for m in METHODS),
+                 str(r.get("cylinder_lost", "-"))]
         print(fmt.format(sep.join(cells)))
-    for m in METHODS:
+    for m in args.methods.split(","):
         errs = [abs(r[f"{m}_err_pct"]) for r in rows]
         print(f"{m:9s} mean |error| {sum(errs) / len(errs):.4f} %   max {max(errs):.4f} %")
     (out / "results.json").write_text(json.dumps(rows, indent=1))

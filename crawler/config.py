@@ -41,7 +41,7 @@ SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
     },
     "odometry": {
         "method": (str, "cylinder"), "roi": (list, None),
-        "max_features": (int, 80), "win_px": (int, 21), "levels": (int, 3),
+        "max_features": (int, 30), "win_px": (int, 9), "levels": (int, 1),
         "max_roundtrip_px": (_NUM, 0.5), "min_tracks": (int, 8),
         "max_baseline_px": (_NUM, 120.0), "speed_window_s": (_NUM, 0.25),
         "max_incidence_deg": (_NUM, 70.0),

@@ -14,15 +14,16 @@ import numpy as np
 
 @dataclass(frozen=True)
 class FlowParams:
-    max_features: int = 80          # Shi–Tomasi corners per keyframe
+    max_features: int = 30          # Shi–Tomasi corners per keyframe (docs/performance.md)
     quality_level: float = 0.01     # corner strength relative to the strongest one
     min_distance_px: int = 8        # spread features over the ROI
     block_size: int = 7
-    win_px: int = 21                # LK window (odd)
-    levels: int = 3                 # pyramid levels above full resolution
-    iterations: int = 30
+    win_px: int = 9                 # LK window (odd)
+    levels: int = 1                 # pyramid levels above full resolution (the guess is good)
+    iterations: int = 10
     epsilon_px: float = 0.01
     max_roundtrip_px: float = 0.5   # forward–backward check
+    check_backward: bool = True     # the backward LK call of that check (half the tracking cost)
     coarse_level: int = 2           # pyramid level of the phase-correlation first guess
 
     @property
@@ -72,6 +73,8 @@ def track(img0: np.ndarray, img1: np.ndarray, pts0: np.ndarray, guess: np.ndarra
     p1 = np.ascontiguousarray(guess, np.float32).reshape(-1, 1, 2).copy()
     lk = params.lk_kwargs
     p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, p1, **lk)
+    if not params.check_backward:
+        return p1.reshape(-1, 2), st1.ravel() == 1, np.zeros(len(p0), np.float32)
     back, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, p0.copy(), **lk)
     roundtrip = np.linalg.norm((back - p0).reshape(-1, 2), axis=1)
     ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (roundtrip < params.max_roundtrip_px)

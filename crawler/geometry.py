@@ -114,13 +114,13 @@ class Camera:
     def normalise(self, pts: np.ndarray) -> np.ndarray:
         """Frame pixels (N, 2) -> undistorted normalised (xn, yn) in the canonical orientation."""
         pts = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
-        if any(self.distortion):
+        if self._distorted:
             xy = cv2.undistortPointsIter(pts.reshape(-1, 1, 2), self.matrix,
                                          np.asarray(self.distortion, np.float64), None, None,
                                          _UNDISTORT_CRITERIA).reshape(-1, 2)
         else:
-            xy = (pts - (self.cx, self.cy)) / (self.fx, self.fy)
-        return xy * self._flip_signs
+            xy = (pts - self._centre) * self._inv_focal
+        return xy * self._flip_signs if self.hflip or self.vflip else xy
 
     def to_pixels(self, xy: np.ndarray) -> np.ndarray:
         """Inverse of normalise: canonical normalised (N, 2) -> frame pixels, distortion applied."""
@@ -135,6 +135,18 @@ class Camera:
     def row_time(self, v: np.ndarray) -> np.ndarray:
         """Seconds after the top row at which (continuous) frame row v was exposed."""
         return self.readout_s * np.asarray(v) / max(self.height - 1, 1)
+
+    @property
+    def _distorted(self) -> bool:
+        return any(self.distortion)
+
+    @property
+    def _centre(self) -> np.ndarray:
+        return np.array([self.cx, self.cy])
+
+    @property
+    def _inv_focal(self) -> np.ndarray:
+        return np.array([1.0 / self.fx, 1.0 / self.fy])
 
     @property
     def _flip_signs(self) -> np.ndarray:
@@ -218,7 +230,7 @@ class PixelProjection(Projection):
 
     def to_wall(self, xy):
         h = self.mount.height_m
-        return np.column_stack([h * xy[:, 0], -h * xy[:, 1]])
+        return _pairs(h * xy[:, 0], -h * xy[:, 1])
 
     def to_image(self, sy):
         h = self.mount.height_m
@@ -237,7 +249,7 @@ class PlaneProjection(Projection):
         d = self.mount.ray(xy)
         with np.errstate(divide="ignore", invalid="ignore"):
             t = np.where(d[:, 2] > 0, self.mount.height_m / d[:, 2], np.nan)
-        return np.column_stack([-t * d[:, 0], t * d[:, 1]])
+        return _pairs(-t * d[:, 0], t * d[:, 1])
 
     def to_image(self, sy):
         rel = np.column_stack([-sy[:, 0], sy[:, 1], np.full(len(sy), self.mount.height_m)])
@@ -259,23 +271,24 @@ class CylinderProjection(Projection):
         return self.mount.pipe_radius_m
 
     def _hit(self, xy):
+        """Ray parameter and hit point; only the x and z components matter for the circle."""
         r = self.mount.pipe_radius_m
         zc = r - self.mount.height_m
-        d = self.mount.ray(xy)
-        a = d[:, 0] ** 2 + d[:, 2] ** 2
-        b = zc * d[:, 2]
+        st, ct = math.sin(self.mount.tilt_rad), math.cos(self.mount.tilt_rad)
+        xn, yn = xy[:, 0], xy[:, 1]
+        dz = ct + yn * st
+        a = xn * xn + dz * dz          # dx = -xn
+        b = zc * dz
         # camera inside the pipe: c < 0, so the positive root always exists unless the ray is axial
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = (-b + np.sqrt(b * b - a * (zc * zc - r * r))) / a
-        t = np.where(a > 1e-12, t, np.nan)
-        x = t * d[:, 0]
-        z = zc + t * d[:, 2]
-        return d, t, x, z
+            t = (np.sqrt(b * b - a * (zc * zc - r * r)) - b) / a
+        if not a.all():
+            t[a <= 1e-12] = np.nan
+        return t, -t * xn, zc + t * dz, st - yn * ct
 
     def to_wall(self, xy):
-        r = self.mount.pipe_radius_m
-        d, t, x, z = self._hit(xy)
-        return np.column_stack([r * np.arctan2(-x, z), t * d[:, 1]])
+        t, x, z, dy = self._hit(xy)
+        return _pairs(self.mount.pipe_radius_m * np.arctan2(-x, z), t * dy)
 
     def to_image(self, sy):
         r = self.mount.pipe_radius_m
@@ -285,7 +298,8 @@ class CylinderProjection(Projection):
         return self.mount.to_camera(rel)
 
     def incidence_deg(self, xy):
-        d, t, x, z = self._hit(xy)
+        t, x, z, _ = self._hit(xy)
+        d = self.mount.ray(xy)
         cos_i = (d[:, 0] * x + d[:, 2] * z) / (np.linalg.norm(d, axis=1) * self.mount.pipe_radius_m)
         return np.degrees(np.arccos(np.clip(cos_i, -1, 1)))
 
@@ -295,6 +309,14 @@ def make_projection(method: str, mount: Mount) -> Projection:
     if method not in classes:
         raise BadConfig(f"[odometry] method = {method!r} is not one of {', '.join(METHODS)}")
     return classes[method](mount)
+
+
+def _pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N, 2) from two (N,) arrays; cheaper than np.column_stack on the per-frame path."""
+    out = np.empty((len(a), 2))
+    out[:, 0] = a
+    out[:, 1] = b
+    return out
 
 
 def roi_outline(roi: tuple[int, int, int, int], n: int = 9) -> np.ndarray:

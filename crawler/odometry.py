@@ -70,58 +70,76 @@ class Estimate:
 class SpeedFilter:
     """Least-squares slope of distance over the last window of seconds.
 
-    Works on timestamps, not frame counts, so dropped frames change nothing but the noise.
+    Works on timestamps, not frame counts, so dropped frames change nothing but the noise. Running
+    sums keep it to a few float operations per frame.
     """
 
     def __init__(self, window_s: float):
         self.window_s = window_s
-        self._hist: deque[tuple[float, float]] = deque()
+        self.reset()
 
     def reset(self):
-        self._hist.clear()
+        self._hist: deque[tuple[float, float]] = deque()
+        self._t0 = None
+        self._n = self._st = self._sd = self._stt = self._std = 0.0
+
+    def _add(self, t, d, sign):
+        self._n += sign
+        self._st += sign * t
+        self._sd += sign * d
+        self._stt += sign * t * t
+        self._std += sign * t * d
 
     def update(self, t: float, d: float) -> float | None:
-        h = self._hist
-        h.append((t, d))
-        while h and h[0][0] < t - self.window_s:
-            h.popleft()
+        if self._t0 is None:
+            self._t0 = t
+        t -= self._t0               # small numbers: the sums stay exact enough for hours
+        self._hist.append((t, d))
+        self._add(t, d, 1)
+        while self._hist[0][0] < t - self.window_s:
+            self._add(*self._hist.popleft(), -1)
         return self.value()
 
     def value(self) -> float | None:
-        if len(self._hist) < 2:
+        n = self._n
+        den = n * self._stt - self._st * self._st
+        if n < 2 or den <= 1e-12 * max(1.0, n * self._stt):
             return None
-        a = np.asarray(self._hist)
-        tt = a[:, 0] - a[:, 0].mean()
-        den = float(tt @ tt)
-        if den <= 0:
-            return None
-        return float(tt @ (a[:, 1] - a[:, 1].mean()) / den)
+        return (n * self._std - self._st * self._sd) / den
 
 
 def robust_step(values: np.ndarray, floor: float, k: float):
-    """Median/MAD consensus: (mean of inliers, inlier mask, robust spread)."""
-    med = np.median(values)
+    """Median/MAD consensus per row of values (rows: axial, lateral): (means, inlier mask, spreads).
+
+    A feature is an inlier when it agrees with the median in every row.
+    """
+    mid = values.shape[1] // 2          # the upper median: partitioning beats np.median's overhead
+    part = values.copy()
+    part.partition(mid, axis=1)
+    med = part[:, mid:mid + 1]
     dev = np.abs(values - med)
-    sigma = 1.4826 * np.median(dev)
-    inl = dev <= max(k * sigma, floor)
+    part = dev.copy()
+    part.partition(mid, axis=1)
+    sigma = 1.4826 * part[:, mid:mid + 1]
+    inl = (dev <= np.maximum(k * sigma, floor)).all(axis=0)
     if not inl.any():
-        return float(med), inl, float(sigma)
-    return float(values[inl].mean()), inl, float(sigma)
+        return med.ravel(), inl, sigma.ravel()
+    return values[:, inl].mean(axis=1), inl, sigma.ravel()
 
 
 class _Keyframe:
     """Features of one keyframe: pixel positions in the ROI, wall positions, row times."""
 
-    def __init__(self, img, pts, wall, row_t, t_s, distance, lateral):
+    def __init__(self, img, pts, wall, row_t, t_s, distance, lateral, predict):
         self.img = img
         self.pts = pts            # (N, 2) float32, ROI pixels
         self.wall = wall          # (N, 2) metres (s, y)
         self.row_t = row_t        # (N,) seconds after the frame's top row
+        self.predict = predict    # (jy, ky, js): pixel motion per metre of axial/lateral step
         self.t_s = t_s
         self.distance = distance
         self.lateral = lateral
         self.n0 = len(pts)
-        self.last = pts.astype(np.float32).copy()   # each feature's position in the latest frame
 
 
 class Odometer:
@@ -134,16 +152,22 @@ class Odometer:
         self.params = params or OdometryParams()
         x, y, w, h = self.roi
         self._offset = np.array([x, y], np.float64)
-        self._roi_centre = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
         self._border = self.params.flow.win_px // 2 + 1
-        # metres per pixel along the axis at the ROI centre: the unit of the inlier floor
-        c = self._roi_centre
-        sy = self._wall(c + [[0, -0.5]]) - self._wall(c + [[0, 0.5]])
-        self.m_per_px = float(abs(sy[0, 1]))
+        b = self._border
+        self._lo, self._hi = np.array([b, b], np.float32), np.array([w - 1 - b, h - 1 - b], np.float32)
+        self._lo0, self._hi0 = np.zeros(2, np.float32), np.array([w - 1, h - 1], np.float32)
+        # wall metres per image pixel at the ROI centre: the unit of the gates, and the Jacobian that
+        # turns the global phase-correlation shift into a first guess of the step
+        c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
+        dv = self._wall(c + [[0, 0.5]]) - self._wall(c + [[0, -0.5]])
+        du = self._wall(c + [[0.5, 0]]) - self._wall(c + [[-0.5, 0]])
+        self._jac = (-float(dv[0, 1]), -float(du[0, 1]), float(dv[0, 0]), float(du[0, 0]))
+        self.m_per_px = abs(float(dv[0, 1]))
         lvl = self.params.flow.coarse_level
         self._coarse_scale = float(2 ** lvl)
         small = (math.ceil(h / 2 ** lvl), math.ceil(w / 2 ** lvl))
         self._window = cv2.createHanningWindow(small[::-1], cv2.CV_32F)
+        self._rs = camera.readout_s > 0
         self.reset()
 
     # -- public -------------------------------------------------------------------------------------
@@ -155,7 +179,8 @@ class Odometer:
         self.frame = -1
         self.lost_frames = 0
         self._kf: _Keyframe | None = None
-        self._prev_coarse = None
+        self._good_coarse = None   # quarter-size ROI of the last tracked frame, for the guess
+        self._good_roi = None
         self._prev_t = None
         self._last_good_t = 0.0
         self._prev_pts = None      # last tracked positions of the keyframe's features (ROI px)
@@ -163,6 +188,8 @@ class Odometer:
         self._last_step = 0.0      # distance gained since the keyframe at the previous frame
         self._last_lat = 0.0
         self._velocity = 0.0
+        self._motion_v = 0.0       # image rows the wall moved in the last tracked frame
+        self._jv = 0.0
         self._speed = SpeedFilter(self.params.speed_window_s)
         # recent track disagreement per unit of displacement: model errors grow with the step, a
         # corrupt frame jumps
@@ -174,15 +201,11 @@ class Odometer:
         self.frame += 1
         x, y, w, h = self.roi
         roi = frame[y:y + h, x:x + w]
-        fp = self.params.flow
-        coarse = flow.coarse_image(roi, fp)
-
         try:
             if self._kf is None:
                 return self._start(roi, t_s)
-            return self._measure(roi, coarse, t_s)
+            return self._measure(roi, t_s)
         finally:
-            self._prev_coarse = coarse
             self._prev_t = t_s
 
     @property
@@ -195,7 +218,7 @@ class Odometer:
     @property
     def track_origins(self) -> np.ndarray:
         """Where the features in tracked_points were found in their keyframe (frame pixels)."""
-        if self._prev_origin is None:
+        if self._prev_origin is None or self._prev_pts is None:
             return np.empty((0, 2))
         return self._prev_origin + self._offset
 
@@ -209,7 +232,15 @@ class Odometer:
 
     def _new_keyframe(self, img, t_s) -> bool:
         img = img.copy()  # the frame buffer belongs to the camera or decoder
-        pts = flow.detect(img, self.params.flow, self._border)
+        h = img.shape[0]
+        if abs(self._motion_v) > 2.0:
+            # moving: look for features only on the side the wall comes in from; they stay in view
+            # longest, and half the image costs half the detection
+            top = 0 if self._motion_v > 0 else int(0.4 * h)
+            pts = flow.detect(img[top:top + int(0.6 * h)], self.params.flow, self._border)
+            pts[:, 1] += top
+        else:
+            pts = flow.detect(img, self.params.flow, self._border)
         if len(pts) < self.params.min_tracks:
             self._kf = None
             self._prev_pts = None
@@ -217,13 +248,23 @@ class Odometer:
         px = pts.astype(np.float64) + self._offset
         wall = self._wall(px)
         good = np.all(np.isfinite(wall), axis=1)
-        self._kf = _Keyframe(img, pts[good], wall[good], self.camera.row_time(px[good, 1]), t_s,
-                             self.distance, self.lateral)
-        self._prev_pts = self._kf.pts.copy()
-        self._prev_origin = self._kf.pts.copy()
+        pts, px, wall = pts[good], px[good], wall[good]
+        # each feature's image motion per metre of step, to second order (once per keyframe: the
+        # exact inverse projection is too dear for every frame, and the guess need not be exact)
+        d = 40 * self.m_per_px
+        ahead = self._pixels(wall + [0.0, -d])
+        behind = self._pixels(wall + [0.0, d])
+        aside = self._pixels(wall + [d, 0.0])
+        predict = ((ahead - behind) / (2 * d), (ahead + behind - 2 * px) / (d * d), (aside - px) / d)
+        self._kf = _Keyframe(img, pts, wall, self.camera.row_time(px[:, 1]), t_s,
+                             self.distance, self.lateral, [a.astype(np.float32) for a in predict])
+        self._prev_pts = self._kf.pts
+        self._prev_origin = self._kf.pts
+        self._jv = float(np.mean(self._kf.predict[0][:, 1]))   # image rows per metre of step
         self._last_step = 0.0
         self._last_lat = 0.0
         self._last_good_t = t_s
+        self._good_roi, self._good_coarse = img, None
         return True
 
     def _start(self, img, t_s) -> Estimate:
@@ -237,77 +278,86 @@ class Odometer:
         n = 0 if self._kf is None else self._kf.n0
         return self._estimate(t_s, ok, n, n if ok else 0, None, keyframe=ok)
 
-    def _guess_step(self, coarse, t_s):
-        """Predicted (axial, lateral) motion since the keyframe for this frame."""
-        step = self._last_step + self._velocity * (t_s - self._last_good_t)
-        lat = self._last_lat
-        if self._prev_coarse is not None and self._prev_coarse.shape == coarse.shape:
-            shift, response = flow.coarse_shift(self._prev_coarse, coarse, self._window,
-                                                 self._coarse_scale)
-            if response >= self.params.min_response and self.lost_frames == 0:
-                c = self._roi_centre
-                before, after = self._wall(c - shift / 2), self._wall(c + shift / 2)
-                d = before - after
-                if np.all(np.isfinite(d)):
-                    step = self._last_step + float(d[0, 1])
-                    lat = self._last_lat - float(d[0, 0])
-        return step, lat
+    def _predict(self, step: float, lat: float) -> np.ndarray:
+        """Where the keyframe's features should be after this axial and lateral step (ROI px)."""
+        jy, ky, js = self._kf.predict
+        return self._kf.pts + jy * step + ky * (0.5 * step * step) + js * lat
 
-    def _measure(self, img, coarse, t_s) -> Estimate:
+    def _coarse_guess(self, img):
+        """(step, lateral) from a phase correlation against the last tracked frame, or None.
+
+        Only needed when the constant-velocity guess failed (start, a jerk, after a loss): it costs
+        as much as the rest of the frame.
+        """
+        if self._good_roi is None or self._good_roi.shape != img.shape:
+            return None
+        fp = self.params.flow
+        if self._good_coarse is None:
+            self._good_coarse = flow.coarse_image(self._good_roi, fp)
+        (du, dv), response = flow.coarse_shift(self._good_coarse, flow.coarse_image(img, fp),
+                                               self._window, self._coarse_scale)
+        if response < self.params.min_response:
+            return None
+        jyv, jyu, jsv, jsu = self._jac
+        return self._last_step + jyv * dv + jyu * du, self._last_lat + jsv * dv + jsu * du
+
+    def _track(self, img, step_guess, lat_guess):
+        """Track the keyframe's features that should be visible: (indices, positions, n visible)."""
+        guess = self._predict(step_guess, lat_guess)
+        idx = np.flatnonzero(((guess >= self._lo) & (guess <= self._hi)).all(axis=1))
+        pts1, ok, _ = flow.track(self._kf.img, img, self._kf.pts[idx], guess[idx], self.params.flow)
+        ok &= ((pts1 >= self._lo0) & (pts1 <= self._hi0)).all(axis=1)
+        return idx[ok], pts1[ok], len(idx)
+
+    def _measure(self, img, t_s) -> Estimate:
         p = self.params
         kf = self._kf
-        step_guess, lat_guess = self._guess_step(coarse, t_s)
-        guess_wall = kf.wall + [lat_guess, -step_guess]
-        guess = self._pixels(guess_wall) - self._offset
-        x, y, w, h = self.roi
-        b = self._border
-        visible = ((guess[:, 0] >= b) & (guess[:, 0] < w - 1 - b) &
-                   (guess[:, 1] >= b) & (guess[:, 1] < h - 1 - b) & np.all(np.isfinite(guess), axis=1))
-        idx = np.flatnonzero(visible)
-        n_visible = len(idx)
-        pts1, ok, _ = flow.track(kf.img, img, kf.pts[idx], guess[idx], p.flow)
-        inside = ((pts1[:, 0] >= 0) & (pts1[:, 0] <= w - 1) & (pts1[:, 1] >= 0) & (pts1[:, 1] <= h - 1))
-        ok &= inside
-        idx, pts1 = idx[ok], pts1[ok]
+        # first guess: constant velocity; if most features are then lost, the global shift
+        guess = (self._last_step + self._velocity * (t_s - self._last_good_t), self._last_lat)
+        idx, pts1, n_visible = self._track(img, *guess)
+        if len(idx) < max(p.min_tracks, 0.6 * n_visible) or self.lost_frames:
+            coarse = self._coarse_guess(img)
+            if coarse is not None:
+                idx2, pts2, n2 = self._track(img, *coarse)
+                if len(idx2) > len(idx):
+                    idx, pts1, n_visible = idx2, pts2, n2
         n_tracked = len(idx)
         result = None
         if n_tracked >= p.min_tracks:
-            px = pts1.astype(np.float64) + self._offset
+            px = pts1 + self._offset
             wall = self._wall(px)
-            fin = np.all(np.isfinite(wall), axis=1)
-            idx, pts1, px, wall = idx[fin], pts1[fin], px[fin], wall[fin]
-            dt = t_s - kf.t_s
-            # rolling shutter: a feature's displacement spans dt plus its change of row time
-            span = dt + self.camera.row_time(px[:, 1]) - kf.row_t[idx]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                scale = np.where(span > 0.2 * dt, dt / span, np.nan) if dt > 0 else np.ones(len(idx))
-            axial = (kf.wall[idx, 1] - wall[:, 1]) * scale
-            lateral = (wall[:, 0] - kf.wall[idx, 0]) * scale
-            fin = np.isfinite(axial)
-            axial, lateral, idx, pts1 = axial[fin], lateral[fin], idx[fin], pts1[fin]
-            if len(axial) >= p.min_tracks:
+            moved = (kf.wall[idx] - wall).T * [[-1.0], [1.0]]     # rows: lateral, axial
+            if self._rs:
+                # rolling shutter: a feature's displacement spans dt plus its change of row time
+                dt = t_s - kf.t_s
+                span = dt + self.camera.row_time(px[:, 1]) - kf.row_t[idx]
+                keep = span > 0.2 * dt
+                moved, idx, pts1 = moved[:, keep] * (dt / span[keep]), idx[keep], pts1[keep]
+            if len(idx) >= p.min_tracks:
                 floor = p.inlier_floor_px * self.m_per_px
-                step, inl, sigma = robust_step(axial, floor, p.mad_k)
-                lat, inl_l, _ = robust_step(lateral, floor, p.mad_k)
-                both = inl & inl_l
-                n_in = int(both.sum())
+                (lat, step), both, (_, sigma) = robust_step(moved, floor, p.mad_k)
+                lat, step, sigma = float(lat), float(step), float(sigma)
+                n_in = int(np.count_nonzero(both))
                 ratio = sigma / (abs(step) + self.m_per_px)
-                usual = np.median(self._spreads) if self._spreads else np.inf
+                hist = self._spreads
+                usual = sorted(hist)[len(hist) // 2] if len(hist) >= 5 else math.inf
                 calm = (ratio <= p.spread_jump * usual or sigma <= p.spread_floor_px * self.m_per_px
                         or self._refusals >= p.max_spread_refusals)
                 self._refusals = 0 if calm else self._refusals + 1
                 if n_in >= p.min_tracks and n_in >= p.min_inlier_share * n_tracked and calm:
-                    step = float(axial[both].mean())
-                    lat = float(lateral[both].mean())
-                    result = (step, lat, n_in, sigma, pts1[both], idx[both])
+                    result = (step, lat, n_in, sigma, ratio, pts1[both], idx[both])
         if result is None:
             return self._lost(img, t_s, n_tracked, n_visible)
-        step, lat, n_in, sigma, pts_in, idx_in = result
+        step, lat, n_in, sigma, ratio, pts_in, idx_in = result
         dt_prev = t_s - self._prev_t
         if dt_prev > 0:
             self._velocity = (step - self._last_step) / dt_prev
+        delta = step - self._last_step
+        self._motion_v = delta * self._jv
         self._last_step, self._last_lat = step, lat
-        self._spreads.append(sigma / (abs(step) + self.m_per_px))
+        self._good_roi, self._good_coarse = img, None   # a view: sources hand out fresh buffers
+        if abs(step) > 3 * self.m_per_px:    # at a standstill the ratio is noise over nothing
+            self._spreads.append(ratio)
         self._last_good_t = t_s
         self.distance = kf.distance + step
         self.lateral = kf.lateral + lat
@@ -316,13 +366,10 @@ class Odometer:
         self.lost_frames = 0
         self._speed.update(t_s, self.distance)
         # renew before the features run out: count those still inside after one more such step
-        motion = np.median(pts_in - kf.last[idx_in], axis=0)
-        kf.last[idx_in] = pts_in
-        ahead = pts_in + motion
-        stay = int(np.count_nonzero((ahead[:, 0] >= b) & (ahead[:, 0] < w - 1 - b) &
-                                    (ahead[:, 1] >= b) & (ahead[:, 1] < h - 1 - b)))
-        moved = float(np.median(np.linalg.norm(pts_in - kf.pts[idx_in], axis=1)))
-        renew = stay < max(p.min_tracks * 2, p.renew_share * kf.n0) or moved > p.max_baseline_px
+        ahead = pts_in + kf.predict[0][idx_in] * delta
+        stay = int(np.count_nonzero(((ahead >= self._lo) & (ahead <= self._hi)).all(axis=1)))
+        renew = (stay < max(p.min_tracks * 2, p.renew_share * kf.n0)
+                 or abs(step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, n_in, sigma, keyframe=False)
         if renew:
             est.keyframe = self._new_keyframe(img, t_s)
