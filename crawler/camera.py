@@ -50,6 +50,8 @@ class WindowPlan:
     fps: float
     readout_s: float                 # top output row to bottom output row
     camera: Camera                   # intrinsics of the output frames
+    line_time_s: float = 0.0
+    top_row_s: float = 0.0           # the window's top row is read this long after the mode's first
 
     @property
     def frame_duration_us(self) -> int:
@@ -129,17 +131,36 @@ def plan_window(modes: list[dict], active_size, window, output_size, fps: float,
     if use_fps < fps:
         _log.warning("[camera] fps = %g exceeds the %s mode's %.1f fps; running at %.1f",
                      fps, mode["size"], mode["fps"], use_fps)
-    rows_per_native = mode["size"][1] / mode["crop_limits"][3]
     if line_time_s is None:
         line_time_s = 1.0 / (mode["fps"] * (mode["size"][1] + vblank_lines))
+    return plan_for_mode(mode, snap_to_mode((x, y, w, h), mode), active_size, output_size, use_fps,
+                         fov_deg, line_time_s, hflip, vflip)
+
+
+def snap_to_mode(window, mode):
+    """The window on the mode's pixel grid, as libcamera will apply it (binned modes move in steps)."""
+    ax, ay, aw, ah = mode["crop_limits"]
+    mw, mh = mode["size"]
+    x, y, w, h = window
+    return (ax + (x - ax) * mw // aw * aw // mw, ay + (y - ay) * mh // ah * ah // mh,
+            w * mw // aw * aw // mw, h * mh // ah * ah // mh)
+
+
+def plan_for_mode(mode, window, active_size, output_size, fps, fov_deg, line_time_s,
+                  hflip=False, vflip=False) -> WindowPlan:
+    """Intrinsics and readout of the output when `window` of the active array is scaled to it."""
+    aw, ah = active_size
+    x, y, w, h = window
+    ow, oh = output_size
+    rows_per_native = mode["size"][1] / mode["crop_limits"][3]
     readout = (h * rows_per_native - 1) * line_time_s   # first to last sensor row of the window
     hfov, vfov = fov_deg
-    full = Camera.from_fov(aw, ah, vfov, hfov)
-    cam = full.window(x, y, w, h, ow, oh)
+    cam = Camera.from_fov(aw, ah, vfov, hfov).window(x, y, w, h, ow, oh)
     cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, hflip=hflip, vflip=vflip,
                  readout_s=readout)
-    return WindowPlan(mode=mode, scaler_crop=(x, y, w, h), output_size=(ow, oh), fps=use_fps,
-                      readout_s=readout, camera=cam)
+    return WindowPlan(mode=mode, scaler_crop=(x, y, w, h), output_size=(ow, oh), fps=fps,
+                      readout_s=readout, camera=cam, line_time_s=line_time_s,
+                      top_row_s=(y - mode["crop_limits"][1]) * rows_per_native * line_time_s)
 
 
 def import_picamera2():
@@ -174,7 +195,7 @@ class Picamera2Source:
         self.model = None
         self.cam = None
         self.frames_read = 0
-        self.last_sensor_ns = None
+        self.first_sensor_ns = self.last_sensor_ns = None
         self.warnings: list[str] = []
 
     def __enter__(self):
@@ -214,6 +235,7 @@ class Picamera2Source:
         modes = cam.sensor_modes            # reconfigures the camera: read before configure()
         window = self.window
         base_model = self.model.split("_")[0]
+        self._active_size, self._fov = active_size, fov
         self.plan = plan_window(modes, active_size, window, self.output_size, self.fps, fov,
                                 SENSOR_VBLANK_MIN.get(base_model, 0), self.line_time_s,
                                 self.hflip, self.vflip)
@@ -227,10 +249,31 @@ class Picamera2Source:
             controls=controls, buffer_count=4)
         cam.configure(config)
         cam.start()
+        self._check_crop()
         self.description = (f"{self.description} {self.model} mode {p.mode['size'][0]}x{p.mode['size'][1]} "
-                            f"crop {list(p.scaler_crop)} -> {p.output_size[0]}x{p.output_size[1]} "
+                            f"crop {list(self.plan.scaler_crop)} -> {p.output_size[0]}x{p.output_size[1]} "
                             f"@ {p.fps:.1f} fps")
         _log.info("%s", self.description)
+
+    def _check_crop(self):
+        """Metres are only right for the crop the ISP really applies: read it back from a frame."""
+        request = self._capture()
+        try:
+            actual = tuple(int(v) for v in request.get_metadata().get("ScalerCrop", self.plan.scaler_crop))
+        finally:
+            request.release()
+        if actual != tuple(self.plan.scaler_crop):
+            p = self.plan
+            _log.warning("camera applied ScalerCrop %s instead of %s; intrinsics follow the camera",
+                         list(actual), list(p.scaler_crop))
+            self.plan = plan_for_mode(p.mode, actual, self._active_size, p.output_size, p.fps,
+                                      self._fov, p.line_time_s, self.hflip, self.vflip)
+
+    def _capture(self):
+        try:
+            return self.cam.capture_request(wait=self.capture_timeout_s)
+        except TimeoutError:
+            raise CameraStalled(f"camera delivered no frame for {self.capture_timeout_s:g} s") from None
 
     def set_controls(self, controls: dict):
         if self.cam is not None:
@@ -241,10 +284,7 @@ class Picamera2Source:
         t0 = None
         n = 0
         while True:
-            try:
-                request = self.cam.capture_request(wait=self.capture_timeout_s)
-            except TimeoutError:
-                raise CameraStalled(f"camera delivered no frame for {self.capture_timeout_s:g} s") from None
+            request = self._capture()
             try:
                 yuv = request.make_array("main")
                 md = request.get_metadata()
@@ -253,10 +293,14 @@ class Picamera2Source:
             ts = md.get("SensorTimestamp")
             if ts is None:
                 raise CrawlerError("camera metadata carries no SensorTimestamp")
+            # SensorTimestamp marks the start of readout; the frame's time is the middle of its
+            # top row's exposure (docs/conventions.md)
+            t_ns = ts + self.plan.top_row_s * 1e9 - md.get("ExposureTime", self.exposure_us) * 500.0
             if t0 is None:
-                t0 = ts
+                t0 = t_ns
+                self.first_sensor_ns = ts
             self.last_sensor_ns = ts
-            yield Frame(n, (ts - t0) / 1e9, yuv[:h, :w])
+            yield Frame(n, (t_ns - t0) / 1e9, yuv[:h, :w])
             n += 1
             self.frames_read = n
 

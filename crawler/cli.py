@@ -227,8 +227,8 @@ def run(args, cfg) -> int:
     warnings = list(getattr(source, "warnings", []))
     if warnings:
         stats.extra["warnings"] = warnings
-    if truth is not None and getattr(source, "last_sensor_ns", None) is not None:
-        stats.extra["sim_true_distance_m"] = round(truth(source.last_sensor_ns), 6)
+    if daemon.true_distance_m() is not None:
+        stats.extra["sim_true_distance_m"] = round(daemon.true_distance_m(), 6)
     if stats.frames == 0 and not stats.error:
         stats.error = "no frames were processed"
     print(json.dumps(daemon.summary()), flush=True)
@@ -240,8 +240,26 @@ def run(args, cfg) -> int:
     return 0
 
 
-def check_config(cfg) -> int:
-    print(json.dumps(cfg.summary(), indent=2))
+def check_config(args, cfg) -> int:
+    """Validate, then print the derived geometry: of the recording frames, and of the live window
+    (from the simulated camera with --sim, from the real one when it can be opened)."""
+    out = cfg.summary()
+    if not args.replay:
+        if args.sim:
+            camera_class, _ = make_sim(cfg, args)
+            source = make_camera_source(cfg, camera_class, description="sim")
+        else:
+            source = make_camera_source(cfg)
+        try:
+            with source:
+                plan = source.plan
+                cam = plan.camera
+                out["live"] = dict(plan.describe(), model=source.model,
+                                   intrinsics={k: round(getattr(cam, k), 3) for k in ("fx", "fy", "cx", "cy")},
+                                   m_per_px_centre=round(cfg.make_mount().height_m / cam.fy, 9))
+        except CameraUnavailable as exc:
+            out["live"] = f"camera unavailable: {exc}"
+    print(json.dumps(out, indent=2))
     return 0
 
 
@@ -252,7 +270,7 @@ def main(argv=None) -> int:
     try:
         cfg = load_config(args)
         if args.check_config:
-            return check_config(cfg)
+            return check_config(args, cfg)
         return run(args, cfg)
     except CrawlerError as exc:
         return _fail(exc, 2)

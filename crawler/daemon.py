@@ -54,6 +54,7 @@ class Daemon:
         self._last_pub = -math.inf
         self._last_status = -math.inf
         self._last_est = None
+        self._start_distance = 0.0
 
     # -- geometry -----------------------------------------------------------------------------------
 
@@ -77,6 +78,9 @@ class Daemon:
         cmd = request.get("cmd")
         if cmd == "reset":
             self.odometer.reset()
+            if self.truth is not None and getattr(self.source, "last_sensor_ns", None) is not None:
+                self._start_distance = 0.0
+                self.source.first_sensor_ns = self.source.last_sensor_ns
             if self.checkpoint:
                 self.checkpoint.new_run()
                 self.checkpoint.save(self._state())
@@ -123,9 +127,17 @@ class Daemon:
         plan = getattr(self.source, "plan", None)
         if plan is not None:
             out["camera"] = plan.describe()
-        if self.truth is not None and getattr(self.source, "last_sensor_ns", None) is not None:
-            out["sim_true_distance_m"] = round(self.truth(self.source.last_sensor_ns), 6)
+        true = self.true_distance_m()
+        if true is not None:
+            out["sim_true_distance_m"] = round(true, 6)
         return out
+
+    def true_distance_m(self) -> float | None:
+        """Simulator only: the ground truth on the same footing as distance_m (same start, same run)."""
+        src = self.source
+        if self.truth is None or getattr(src, "last_sensor_ns", None) is None:
+            return None
+        return self._start_distance + self.truth(src.last_sensor_ns) - self.truth(src.first_sensor_ns)
 
     def _publish(self, est, now):
         if self.link is None:
@@ -155,6 +167,7 @@ class Daemon:
             if saved:
                 self.odometer.reset(distance=saved["distance_m"])
                 _log.warning("resuming run %s at %.4f m", self.checkpoint.run_id, saved["distance_m"])
+        self._start_distance = self.odometer.distance
         if self.notifier:
             self.notifier.ready(f"measuring from {self.source.description}")
         self.leds.on()

@@ -1,0 +1,220 @@
+"""The real daemon loop with hw_sim's fake Picamera2, gpiozero's mock pins and loopback Zenoh."""
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+from gpiozero.pins.mock import MockFactory, MockPWMPin
+
+from conftest import free_port, wait_for
+from crawler import config
+from crawler.checkpoint import Checkpoint
+from crawler.cli import make_camera_source, make_link
+from crawler.daemon import Daemon
+from crawler.leds import Leds
+from crawler.sdnotify import Notifier
+from hw_sim.picamera2_fake import SimWorld, make_picamera2
+
+
+class Rig:
+    """A daemon wired as `crawlerd --sim` wires it, with handles on every part."""
+
+    def __init__(self, tmp_path, zenoh_pair, *, speed=0.3, tilt=0.0, max_frames=None, notifier=None,
+                 extra=()):
+        self.cfg = config.load(None, [
+            f"mount.tilt_deg={tilt}", "leds.pins=[12, 13]", "leds.brightness=0.8",
+            f"state.directory={json.dumps(str(tmp_path / 'state'))}",
+            f"zenoh.listen={json.dumps(zenoh_pair['listen'])}", "zenoh.multicast=false",
+            "camera.fps=60", "camera.capture_timeout_s=0.5", *extra])
+        self.world = SimWorld("imx219", tilt_deg=tilt, speed_m_s=speed)
+        self.source = make_camera_source(self.cfg, make_picamera2(self.world), description="sim")
+        self.pins = MockFactory(pin_class=MockPWMPin)
+        self.leds = Leds([12, 13], brightness=0.8, pin_factory=self.pins)
+        self.stop = threading.Event()
+        ref = [None]
+        self.link = make_link(self.cfg, ref).open()
+        self.daemon = Daemon(self.cfg, self.source, mode="sim", leds=self.leds, link=self.link,
+                             notifier=notifier, checkpoint=Checkpoint(tmp_path / "state"),
+                             truth=self.world.true_distance_m, stop=self.stop.is_set,
+                             max_frames=max_frames)
+        ref[0] = self.daemon
+        self.stats = None
+
+    def start(self):
+        self.source.__enter__()
+        self.thread = threading.Thread(target=self._run)
+        self.thread.start()
+        return self
+
+    def _run(self):
+        try:
+            self.stats = self.daemon.run()
+        finally:
+            self.source.__exit__(None, None, None)
+
+    def finish(self, timeout=30):
+        self.stop.set()
+        self.thread.join(timeout)
+        self.leds.close()
+        self.link.close()
+        self.pins.reset()
+
+    def led_states(self):
+        return [self.pins.pin(p).state for p in (12, 13)]
+
+
+def subscribe(session, key, sink):
+    return session.declare_subscriber(key, lambda s: sink.append(json.loads(s.payload.to_string())))
+
+
+def ask(session, selector, payload=None):
+    for reply in session.get(selector, payload=payload, timeout=3.0):
+        if reply.ok is not None:
+            return "ok", json.loads(reply.ok.payload.to_string())
+        return "err", json.loads(reply.err.payload.to_string())
+    return None, None
+
+
+def test_distance_on_the_topic_matches_the_simulator(tmp_path, zenoh_pair, operator):
+    dist, status = [], []
+    subscribe(operator, "crawler/*/distance", dist)
+    subscribe(operator, "crawler/crawler1/status", status)
+    rig = Rig(tmp_path, zenoh_pair, speed=0.3, tilt=20, max_frames=180).start()
+    try:
+        assert wait_for(lambda: len(dist) > 5, timeout=15)
+        assert rig.led_states() == [0.8, 0.8]                   # lit while measuring
+        rig.thread.join(30)
+    finally:
+        rig.finish()
+    assert rig.stats.error is None and rig.stats.frames == 180
+    assert wait_for(lambda: status and status[-1]["frames"] == 180, timeout=5)
+    last = status[-1]
+    true = last["sim_true_distance_m"]
+    assert true > 0.5
+    assert last["distance_m"] == pytest.approx(true, rel=0.01)
+    assert dist[-1]["distance_m"] == pytest.approx(true, rel=0.01)
+    assert [d["seq"] for d in dist] == sorted(d["seq"] for d in dist)
+    assert {"t_s", "distance_m", "speed_m_s", "quality", "tracking", "seq"} <= set(dist[-1])
+    assert last["source"] == "sim" and last["camera"]["sensor_mode"] == [640, 480]
+    assert rig.led_states() == [0.0, 0.0]                       # off after stop
+    saved = json.loads((tmp_path / "state" / "checkpoint.json").read_text())
+    assert saved["distance_m"] == pytest.approx(last["distance_m"], abs=1e-6)
+
+
+def test_control_reset_led_and_malformed_requests(tmp_path, zenoh_pair, operator):
+    status = []
+    subscribe(operator, "crawler/crawler1/status", status)
+    rig = Rig(tmp_path, zenoh_pair, speed=0.3).start()
+    try:
+        assert wait_for(lambda: ask(operator, "crawler/crawler1/control?cmd=status")[0] == "ok", timeout=15)
+        assert wait_for(lambda: rig.daemon.distance_m > 0.05, timeout=15)
+        kind, body = ask(operator, "crawler/crawler1/control?cmd=reset")
+        assert kind == "ok" and body["distance_m"] == 0.0
+        assert rig.daemon.distance_m < 0.02
+        assert body["run_id"] != status[0]["run_id"]
+        kind, body = ask(operator, "crawler/crawler1/control", json.dumps({"cmd": "led", "level": 0.3}))
+        assert kind == "ok" and rig.led_states() == [0.3, 0.3]
+        for bad in ("?cmd=led;level=7", "?cmd=led;level=bright", "?cmd=explode", ""):
+            kind, body = ask(operator, "crawler/crawler1/control" + bad)
+            assert kind == "err" and body["error"], bad
+        kind, body = ask(operator, "crawler/crawler1/control", "not json")
+        assert kind == "err" and "not JSON" in body["error"]
+        time.sleep(0.3)
+        assert rig.thread.is_alive()                              # nothing reached the loop
+        kind, body = ask(operator, "crawler/crawler1/control?cmd=status")
+        assert kind == "ok" and body["led_level"] == 0.3 and body["sim_true_distance_m"] >= 0
+    finally:
+        rig.finish()
+    assert rig.stats.error is None
+
+
+def test_a_stalled_camera_stops_the_watchdog_and_is_reported(tmp_path, zenoh_pair, operator):
+    addr = str(tmp_path / "notify")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    server.bind(addr)
+    server.settimeout(0.1)
+    notifier = Notifier({"NOTIFY_SOCKET": addr, "WATCHDOG_USEC": "200000"})
+    status = []
+    subscribe(operator, "crawler/crawler1/status", status)
+    rig = Rig(tmp_path, zenoh_pair, notifier=notifier).start()
+    received = []
+
+    def drain(seconds):
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            try:
+                received.append(server.recv(200).decode())
+            except socket.timeout:
+                pass
+
+    try:
+        drain(1.0)
+        assert received[0].startswith("READY=1") and received.count("WATCHDOG=1") >= 5
+        rig.world.stall()
+        received.clear()
+        rig.thread.join(10)
+        drain(0.3)
+    finally:
+        rig.finish()
+    pings_after_stall = [m for m in received if m == "WATCHDOG=1"]
+    assert len(pings_after_stall) <= 2                         # the frame loop stopped feeding it
+    assert "STOPPING=1" in received
+    assert "camera delivered no frame" in rig.stats.error
+    assert wait_for(lambda: status and status[-1]["last_error"], timeout=5)
+    assert "camera delivered no frame" in status[-1]["last_error"]
+    assert rig.led_states() == [0.0, 0.0]
+
+
+def start_crawlerd(tmp_path, port, *extra):
+    env = dict(os.environ, CRAWLERD_CONFIG=str(tmp_path / "none.toml"))
+    (tmp_path / "none.toml").write_text("")
+    return subprocess.Popen(
+        [sys.executable, "-m", "crawler", "--sim", "--sim-speed", "0.3", "--no-multicast",
+         "--listen", f"tcp/127.0.0.1:{port}", "--state-dir", str(tmp_path / "state"), *extra],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+
+
+def test_sigterm_exits_cleanly_and_a_killed_daemon_resumes(tmp_path):
+    import zenoh
+
+    from crawler.link import make_zenoh_config
+
+    port = free_port()
+    dist = []
+    operator = zenoh.open(make_zenoh_config("peer", connect=[f"tcp/127.0.0.1:{port}"], multicast=False))
+    subscribe(operator, "crawler/crawler1/distance", dist)
+    try:
+        proc = start_crawlerd(tmp_path, port)
+        assert wait_for(lambda: len(dist) > 30, timeout=60), proc.stderr.read() if proc.poll() else ""
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+        assert proc.returncode == 0, err
+        summary = json.loads(out.strip().splitlines()[-1])
+        assert summary["frames"] > 30 and summary["distance_m"] > 0.05
+        saved = json.loads((tmp_path / "state" / "checkpoint.json").read_text())
+        assert saved["distance_m"] == pytest.approx(summary["distance_m"], abs=1e-6)
+
+        dist.clear()
+        proc = start_crawlerd(tmp_path, port)
+        assert wait_for(lambda: len(dist) > 5, timeout=60)
+        assert dist[0]["distance_m"] >= summary["distance_m"] - 1e-6       # resumed, not from zero
+        assert wait_for(lambda: dist[-1]["distance_m"] > summary["distance_m"] + 0.1, timeout=30)
+        proc.kill()                                                       # no goodbye: SIGKILL
+        proc.communicate(timeout=30)
+        killed_at = dist[-1]["distance_m"]
+        saved = json.loads((tmp_path / "state" / "checkpoint.json").read_text())
+        assert killed_at - 0.35 <= saved["distance_m"] <= killed_at      # at most ~1 s behind
+
+        dist.clear()
+        proc = start_crawlerd(tmp_path, port, "--max-frames", "30")
+        out, _ = proc.communicate(timeout=60)
+        assert proc.returncode == 0
+        assert json.loads(out.strip().splitlines()[-1])["distance_m"] >= saved["distance_m"]
+    finally:
+        operator.close()
