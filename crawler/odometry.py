@@ -309,7 +309,7 @@ class Odometer:
         ok &= ((pts1 >= self._lo0) & (pts1 <= self._hi0)).all(axis=1)
         return idx[ok], pts1[ok], len(idx)
 
-    def _measure(self, img, t_s) -> Estimate:
+    def _measure(self, img, t_s, rescue: bool = True) -> Estimate:
         p = self.params
         kf = self._kf
         # first guess: constant velocity; if most features are then lost, the global shift
@@ -347,6 +347,12 @@ class Odometer:
                 if n_in >= p.min_tracks and n_in >= p.min_inlier_share * n_tracked and calm:
                     result = (step, lat, n_in, sigma, ratio, pts1[both], idx[both])
         if result is None:
+            if rescue and self._good_roi is not None and kf.t_s < self._last_good_t:
+                # the keyframe is worn out (features gone, light changed): start one at the last
+                # tracked frame, whose distance is known, and measure this frame again from there
+                if self._new_keyframe(self._good_roi, self._last_good_t):
+                    return self._measure(img, t_s, rescue=False)
+                self._kf = kf
             return self._lost(img, t_s, n_tracked, n_visible)
         step, lat, n_in, sigma, ratio, pts_in, idx_in = result
         dt_prev = t_s - self._prev_t
