@@ -4,8 +4,8 @@
 
 For each frame rate and LK configuration, renders short hw_sim runs of the live path's 240x240 window
 (thesis camera crop, tilt 0) at rising speeds and replays them; prints, per configuration, the
-highest speed whose distance error stays under 1 % (with tracking held on every frame) and the image
-motion in px/frame it corresponds to. Not a test: it prints figures (docs/performance.md).
+highest speed whose distance error stays under 1 % and the image
+motion in px/frame it corresponds to (frames reported lost are allowed; the distance must hold). Not a test: it prints figures (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def main(argv=None):
     for c in configs:
         cells = []
         for fps in fpss:
-            ok = [r for r in results if r[0] == fps and r[2] == c and r[3] < 1.0 and r[4] == 0]
+            ok = [r for r in results if r[0] == fps and r[2] == c and r[3] < 1.0]
             # the limit is the last speed before the first failure
             limit = None
             for v in SPEEDS:

@@ -127,6 +127,11 @@ def robust_step(values: np.ndarray, floor: float, k: float):
     return values[:, inl].mean(axis=1), inl, sigma.ravel()
 
 
+def _median(values) -> float:
+    v = sorted(values)
+    return v[len(v) // 2]
+
+
 class _Keyframe:
     """Features of one keyframe: pixel positions in the ROI, wall positions, row times."""
 
@@ -194,6 +199,7 @@ class Odometer:
         # recent track disagreement per unit of displacement: model errors grow with the step, a
         # corrupt frame jumps
         self._spreads: deque[float] = deque(maxlen=15)
+        self._sigmas: deque[float] = deque(maxlen=15)
         self._refusals = 0
 
     def update(self, frame: np.ndarray, t_s: float) -> Estimate:
@@ -339,9 +345,13 @@ class Odometer:
                 lat, step, sigma = float(lat), float(step), float(sigma)
                 n_in = int(np.count_nonzero(both))
                 ratio = sigma / (abs(step) + self.m_per_px)
-                hist = self._spreads
-                usual = sorted(hist)[len(hist) // 2] if len(hist) >= 5 else math.inf
-                calm = (ratio <= p.spread_jump * usual or sigma <= p.spread_floor_px * self.m_per_px
+                # a corrupt frame: the tracks disagree far more than lately, both in metres and per
+                # metre of step (model errors grow with the step; noise does not)
+                moving = abs(step) > 3 * self.m_per_px      # the ratio means nothing at a standstill
+                jump = (moving and len(self._spreads) >= 5 and len(self._sigmas) >= 5
+                        and ratio > p.spread_jump * _median(self._spreads)
+                        and sigma > p.spread_jump * _median(self._sigmas))
+                calm = (not jump or sigma <= p.spread_floor_px * self.m_per_px
                         or self._refusals >= p.max_spread_refusals)
                 self._refusals = 0 if calm else self._refusals + 1
                 if n_in >= p.min_tracks and n_in >= p.min_inlier_share * n_tracked and calm:
@@ -362,7 +372,8 @@ class Odometer:
         self._motion_v = delta * self._jv
         self._last_step, self._last_lat = step, lat
         self._good_roi, self._good_coarse = img, None   # a view: sources hand out fresh buffers
-        if abs(step) > 3 * self.m_per_px:    # at a standstill the ratio is noise over nothing
+        self._sigmas.append(sigma)
+        if abs(step) > 3 * self.m_per_px:
             self._spreads.append(ratio)
         self._last_good_t = t_s
         self.distance = kf.distance + step
