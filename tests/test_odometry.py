@@ -98,9 +98,12 @@ def test_quality_reports_tracks_and_spread(texture):
 
 def test_robust_step_ignores_outliers():
     rng = np.random.default_rng(0)
-    v = np.concatenate([rng.normal(1.0, 0.001, 40), [5.0, -3.0, 2.0, 1.2]])
-    step, inl, sigma = robust_step(v, 1e-4, 3.5)
-    assert step == pytest.approx(1.0, abs=1e-3) and inl[:40].all() and not inl[40:].any()
+    axial = np.concatenate([rng.normal(1.0, 0.001, 40), [5.0, -3.0, 2.0, 1.2, 1.0]])
+    lateral = np.concatenate([rng.normal(0.0, 0.001, 40), [0.0, 0.0, 0.0, 0.0, 0.5]])
+    (lat, step), inl, sigma = robust_step(np.vstack([lateral, axial]), 1e-4, 3.5)
+    assert step == pytest.approx(1.0, abs=1e-3) and lat == pytest.approx(0.0, abs=1e-3)
+    assert inl[:40].all() and not inl[40:].any()      # the last one agrees axially, not laterally
+    assert sigma[1] == pytest.approx(0.001, rel=0.5)
 
 
 def test_speed_filter_is_a_least_squares_slope():
