@@ -95,7 +95,7 @@ def _contains(outer, inner) -> bool:
 
 
 def plan_window(modes: list[dict], active_size, window, output_size, fps: float,
-                fov_deg, vblank_lines: int = 0, line_time_s: float | None = None,
+                lens, vblank_lines: int = 0, line_time_s: float | None = None,
                 hflip: bool = False, vflip: bool = False) -> WindowPlan:
     """Choose the sensor mode and ScalerCrop for a window of the active array.
 
@@ -134,7 +134,7 @@ def plan_window(modes: list[dict], active_size, window, output_size, fps: float,
     if line_time_s is None:
         line_time_s = 1.0 / (mode["fps"] * (mode["size"][1] + vblank_lines))
     return plan_for_mode(mode, snap_to_mode((x, y, w, h), mode), active_size, output_size, use_fps,
-                         fov_deg, line_time_s, hflip, vflip)
+                         lens, line_time_s, hflip, vflip)
 
 
 def snap_to_mode(window, mode):
@@ -146,18 +146,25 @@ def snap_to_mode(window, mode):
             w * mw // aw * aw // mw, h * mh // ah * ah // mh)
 
 
-def plan_for_mode(mode, window, active_size, output_size, fps, fov_deg, line_time_s,
+def plan_for_mode(mode, window, active_size, output_size, fps, lens, line_time_s,
                   hflip=False, vflip=False) -> WindowPlan:
-    """Intrinsics and readout of the output when `window` of the active array is scaled to it."""
+    """Intrinsics and readout of the output when `window` of the active array is scaled to it.
+
+    `lens` is the full active array's (hfov, vfov) in degrees, or its calibrated Camera.
+    """
     aw, ah = active_size
     x, y, w, h = window
     ow, oh = output_size
     rows_per_native = mode["size"][1] / mode["crop_limits"][3]
     readout = (h * rows_per_native - 1) * line_time_s   # first to last sensor row of the window
-    hfov, vfov = fov_deg
-    cam = Camera.from_fov(aw, ah, vfov, hfov).window(x, y, w, h, ow, oh)
-    cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, hflip=hflip, vflip=vflip,
-                 readout_s=readout)
+    if isinstance(lens, Camera):
+        full = lens
+    else:
+        hfov, vfov = lens
+        full = Camera.from_fov(aw, ah, vfov, hfov)
+    cam = full.window(x, y, w, h, ow, oh)
+    cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.distortion, hflip=hflip,
+                 vflip=vflip, readout_s=readout)
     return WindowPlan(mode=mode, scaler_crop=(x, y, w, h), output_size=(ow, oh), fps=fps,
                       readout_s=readout, camera=cam, line_time_s=line_time_s,
                       top_row_s=(y - mode["crop_limits"][1]) * rows_per_native * line_time_s)
@@ -177,7 +184,8 @@ class Picamera2Source:
 
     def __init__(self, camera_class=None, *, camera_num: int = 0, window=None, output_size=(240, 240),
                  fps: float = 60.0, exposure_us: int = 2000, analogue_gain: float = 4.0,
-                 fov_deg=None, line_time_us: float | None = None, hflip: bool = False,
+                 fov_deg=None, calibration: Camera | None = None, line_time_us: float | None = None,
+                 hflip: bool = False,
                  vflip: bool = False, capture_timeout_s: float = 2.0, description: str = "camera"):
         self.camera_class = camera_class
         self.camera_num = camera_num
@@ -187,6 +195,7 @@ class Picamera2Source:
         self.exposure_us = int(exposure_us)
         self.analogue_gain = float(analogue_gain)
         self.fov_deg = fov_deg
+        self.calibration = calibration      # full active array intrinsics, instead of the FOV
         self.line_time_s = None if line_time_us is None else line_time_us / 1e6
         self.hflip, self.vflip = hflip, vflip
         self.capture_timeout_s = capture_timeout_s
@@ -229,6 +238,13 @@ class Picamera2Source:
         active = props.get("PixelArrayActiveAreas") or [(0, 0) + tuple(props["PixelArraySize"])]
         active_size = tuple(active[0][2:])
         fov = self.fov_deg or SENSOR_FOV_DEG.get(self.model)
+        if self.calibration is not None:
+            if (self.calibration.width, self.calibration.height) != tuple(active_size):
+                raise BadConfig(
+                    f"[camera] calibration is for {self.calibration.width}x{self.calibration.height} but the "
+                    f"{self.model}'s active array is {active_size[0]}x{active_size[1]}; calibrate at full "
+                    "sensor resolution")
+            fov = self.calibration
         if fov is None:
             raise BadConfig(f"camera model {self.model!r} has no known field of view; set [camera] "
                             "sensor_hfov_deg and sensor_vfov_deg (or a calibration file)")

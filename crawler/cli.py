@@ -118,7 +118,13 @@ def make_camera_source(cfg, camera_class=None, description="camera"):
 
     c = cfg.camera
     fov = (c["sensor_hfov_deg"], c["sensor_vfov_deg"]) if c["sensor_hfov_deg"] else None
+    calibration = None
+    if c["calibration"]:
+        from .geometry import Camera
+
+        calibration = Camera.from_calibration(c["calibration"])
     return Picamera2Source(camera_class, camera_num=c["camera_num"], window=c["sensor_window"],
+                           calibration=calibration,
                            output_size=tuple(c["output_size"]), fps=c["fps"], exposure_us=c["exposure_us"],
                            analogue_gain=c["analogue_gain"], fov_deg=fov, line_time_us=c["line_time_us"],
                            hflip=c["hflip"], vflip=c["vflip"], capture_timeout_s=c["capture_timeout_s"],

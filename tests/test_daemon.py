@@ -108,16 +108,15 @@ def test_distance_on_the_topic_matches_the_simulator(tmp_path, zenoh_pair, opera
 
 
 def test_control_reset_led_and_malformed_requests(tmp_path, zenoh_pair, operator):
-    status = []
-    subscribe(operator, "crawler/crawler1/status", status)
     rig = Rig(tmp_path, zenoh_pair, speed=0.3).start()
     try:
         assert wait_for(lambda: ask(operator, "crawler/crawler1/control?cmd=status")[0] == "ok", timeout=15)
+        run_id = ask(operator, "crawler/crawler1/control?cmd=status")[1]["run_id"]
         assert wait_for(lambda: rig.daemon.distance_m > 0.05, timeout=15)
         kind, body = ask(operator, "crawler/crawler1/control?cmd=reset")
         assert kind == "ok" and body["distance_m"] == 0.0
         assert rig.daemon.distance_m < 0.02
-        assert body["run_id"] != status[0]["run_id"]
+        assert body["run_id"] != run_id
         kind, body = ask(operator, "crawler/crawler1/control", json.dumps({"cmd": "led", "level": 0.3}))
         assert kind == "ok" and rig.led_states() == [0.3, 0.3]
         for bad in ("?cmd=led;level=7", "?cmd=led;level=bright", "?cmd=explode", ""):
