@@ -25,7 +25,7 @@ import traceback
 from pathlib import Path
 
 from . import __version__
-from .errors import CameraUnavailable, CrawlerError
+from .errors import BadConfig, CameraUnavailable, CrawlerError
 
 PROG = "crawlerd"
 DEFAULT_CONFIG = "/etc/crawler/crawlerd.toml"
@@ -63,6 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--sim-sensor", default="imx219", choices=("imx219", "ov5647", "imx708"),
                      help="simulated camera module (imx219)")
     sim.add_argument("--sim-seed", type=int, default=0, metavar="N", help="wall texture seed")
+    sim.add_argument("--sim-featureless", action="append", default=[], metavar="A:B",
+                     help="a smooth, wet stretch of wall from A to B metres (repeatable)")
     net = p.add_argument_group("zenoh")
     net.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                      help="e.g. tcp/0.0.0.0:7447 (repeatable; = [zenoh] listen)")
@@ -135,8 +137,15 @@ def make_sim(cfg, args):
     """hw_sim's fake Picamera2 class bound to a simulated run, and its ground truth."""
     from hw_sim.picamera2_fake import SimWorld, make_picamera2
 
+    try:
+        featureless = tuple(tuple(float(v) for v in item.split(":")) for item in args.sim_featureless)
+        if not all(len(f) == 2 and f[0] < f[1] for f in featureless):
+            raise ValueError
+    except ValueError:
+        raise BadConfig(f"--sim-featureless {args.sim_featureless} must be A:B with A < B in metres, "
+                        "e.g. 0.5:0.8") from None
     world = SimWorld(sensor=args.sim_sensor, tilt_deg=cfg.mount["tilt_deg"], speed_m_s=args.sim_speed,
-                     profile=args.sim_profile, seed=args.sim_seed,
+                     profile=args.sim_profile, seed=args.sim_seed, featureless=featureless,
                      pipe_diameter_m=cfg.mount["pipe_diameter_m"], car_width_m=cfg.mount["car_width_m"],
                      offset_m=cfg.mount["camera_offset_m"], camera_height_m=cfg.mount["height_m"])
     return make_picamera2(world), world
@@ -193,8 +202,9 @@ def run(args, cfg) -> int:
             source.__enter__()
             source.description = f"FALLBACK {source.description} (camera: {exc})"
         try:
-            if cfg.leds["pins"] and mode != "replay":
-                leds = Leds(cfg.leds["pins"], brightness=cfg.leds["brightness"],
+            pins = cfg.leds["pins"] or ([12, 13] if mode == "sim" else [])   # sim: mock pins anyway
+            if pins and not mode.startswith("replay"):
+                leds = Leds(pins, brightness=cfg.leds["brightness"],
                             frequency_hz=cfg.leds["frequency_hz"], active_high=cfg.leds["active_high"],
                             pin_factory=pin_factory)
             if publish:

@@ -77,7 +77,7 @@ class Daemon:
         """A control request, run in the frame loop. Raises ValueError for a malformed one."""
         cmd = request.get("cmd")
         if cmd == "reset":
-            self.odometer.reset()
+            self.odometer.set_distance(0.0)
             if self.truth is not None and getattr(self.source, "last_sensor_ns", None) is not None:
                 self._start_distance = 0.0
                 self.source.first_sensor_ns = self.source.last_sensor_ns

@@ -160,7 +160,8 @@ class ZenohLink:
             if self._on_command is None:
                 raise ValueError("this crawler takes no commands")
             answer = self._on_command(request)
-            query.reply(query.key_expr, json.dumps(dict(answer, ok=True)))
+            # on our own key: a wildcard query (crawler/*/control) then gets one reply per crawler
+            query.reply(f"{self.prefix}/control", json.dumps(dict(answer, ok=True)))
         except Exception as exc:   # a malformed request must never reach the daemon
             try:
                 query.reply_err(json.dumps({"ok": False, "error": str(exc)}))

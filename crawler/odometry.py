@@ -202,6 +202,14 @@ class Odometer:
         self._sigmas: deque[float] = deque(maxlen=15)
         self._refusals = 0
 
+    def set_distance(self, distance: float = 0.0):
+        """Count from `distance` now, without losing track (an operator's reset mid-run)."""
+        delta = distance - self.distance
+        self.distance = distance
+        if self._kf is not None:
+            self._kf.distance += delta
+        self._speed.reset()
+
     def update(self, frame: np.ndarray, t_s: float) -> Estimate:
         """Process one full grey frame (only its ROI is read) taken at t_s seconds."""
         self.frame += 1

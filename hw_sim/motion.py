@@ -79,13 +79,25 @@ class Motion:
             self.segments = [Trapezoid(0.0, t1, speed, accel), Trapezoid(t1, duration - t1, -speed, accel)]
         else:
             raise ValueError(f"profile={profile!r} is unknown")
+        # segments are disjoint and in time order: a long live run (a day of stop-and-go is 43200
+        # segments) must evaluate only the ones around t
+        self._starts = np.array([s.t0 for s in self.segments])
+        self._ends = self._starts + np.array([s.T for s in self.segments])
+        self._before = np.concatenate([[0.0], np.cumsum([s.length for s in self.segments])])
+
+    def _around(self, t: np.ndarray):
+        """(distance of the segments finished before t.min(), the segments overlapping t)."""
+        i0 = int(np.searchsorted(self._ends, t.min(), "left"))
+        i1 = int(np.searchsorted(self._starts, t.max(), "right"))
+        return self._before[i0], self.segments[i0:max(i0, i1)]
 
     def distance(self, t):
         t = np.asarray(t, dtype=np.float64)
         if self.profile == "constant":
             out = self.v * t
         else:
-            out = sum((s.distance(t) for s in self.segments), np.zeros_like(t))
+            done, active = self._around(t)
+            out = sum((s.distance(t) for s in active), np.full_like(t, done))
         return float(out) if out.ndim == 0 else out
 
     def speed(self, t):
@@ -93,7 +105,8 @@ class Motion:
         if self.profile == "constant":
             out = np.full_like(t, self.v)
         else:
-            out = sum((s.speed(t) for s in self.segments), np.zeros_like(t))
+            _, active = self._around(t)
+            out = sum((s.speed(t) for s in active), np.zeros_like(t))
         return float(out) if out.ndim == 0 else out
 
     @property
