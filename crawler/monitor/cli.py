@@ -317,8 +317,12 @@ def cmd_watch(args) -> int:
                 session.close()
     finally:
         w.close()
+    names = sorted(w.fleet.crawlers)
+    heard = f"heard {len(names)} crawler(s): {', '.join(names)}" if names else (
+        f"heard no crawler on {w.key}/* (is crawlerd running? check --connect, or multicast on this network)")
     if w.writer is not None:
-        print(f"{PROG}: recorded {w.writer.rows} rows to {w.writer.path}", file=sys.stderr)
+        heard += f"; recorded {w.writer.rows} rows to {w.writer.path}"
+    print(f"{PROG}: {heard}", file=sys.stderr)
     return 0
 
 
@@ -366,8 +370,8 @@ def cmd_plot(args) -> int:
         raise NothingToPlot(f"nothing to plot in {args.file}: {exc}") from None
     try:
         ok = cv2.imwrite(str(out), img)
-    except cv2.error as exc:
-        ok, _ = False, exc
+    except cv2.error:
+        ok = False
     if not ok:
         raise UsageError(f"cannot write {str(out)!r} (does its folder exist?)")
     t0, series = series_from_records(records)

@@ -44,6 +44,7 @@ class Crawler:
     run_id: str | None = None
     last_error: str | None = None
     sim_true_distance_m: float | None = None
+    sim_err_m: float | None = None        # status distance_m - sim_true_distance_m, both of one frame
     lost_since: float | None = None       # when tracking was lost (monotonic s), None while tracking
     silent: str | None = None             # why it is silent, None while it talks
 
@@ -89,7 +90,10 @@ class FleetState:
         elif topic == "status":
             c.fps, c.led_level, c.source = get("fps"), get("led_level"), get("source")
             c.run_id, c.last_error = get("run_id"), get("last_error")
-            c.sim_true_distance_m = get("sim_true_distance_m")
+            c.sim_true_distance_m = truth = get("sim_true_distance_m")
+            # not the latest distance: that is up to a status period newer than the truth
+            d = get("distance_m")
+            c.sim_err_m = d - truth if d is not None and truth is not None else None
             if c.distance_m is None:          # no estimate seen yet: the status knows the distance too
                 c.distance_m = get("distance_m")
         self._silence(c, now, events)

@@ -24,9 +24,10 @@ from ..errors import CrawlerError
 from .view import iso
 
 SUFFIXES = (".csv", ".jsonl")
-COLUMNS = ("time", "t_unix", "name", "topic", "seq", "frame", "t_s", "distance_m", "speed_m_s", "quality",
-           "tracking", "tracks", "inliers", "lateral_m", "fps", "led_level", "source", "run_id", "last_error",
-           "sim_true_distance_m", "alive", "event", "detail")
+COLUMNS = ("time", "t_unix", "name", "topic",
+           "seq", "frame", "t_s", "distance_m", "speed_m_s", "quality", "tracking", "tracks", "inliers", "lateral_m",
+           "fps", "frames", "uptime_s", "led_level", "source", "run_id", "last_error", "sim_true_distance_m",
+           "alive", "event", "detail")
 _PAYLOAD_COLUMNS = COLUMNS[4:]
 _BOOL = {"tracking", "alive"}
 _TEXT = {"time", "name", "topic", "source", "run_id", "last_error", "event", "detail"}

@@ -48,10 +48,7 @@ def row_cells(c: Crawler, now: float, sim: bool) -> list[str]:
     cells = [c.name, num(c.distance_m, 4), num(c.speed_m_s, 3), num(c.quality, 2), tracks,
              num(c.fps, 1), num(c.led_level, 2), f"{c.age(now):.1f}", c.source or "-", state_text(c, now)[0]]
     if sim:
-        err = None
-        if c.sim_true_distance_m is not None and c.distance_m is not None:
-            err = (c.distance_m - c.sim_true_distance_m) * 1000
-        cells.insert(-1, num(err, 1))
+        cells.insert(-1, num(None if c.sim_err_m is None else c.sim_err_m * 1000, 1))
     return cells
 
 
