@@ -97,7 +97,6 @@ class Stages:
 
 def timing(args, name, window, h264, meta):
     import cv2
-    import numpy as np
 
     from crawler import flow
     from crawler.link import ZenohLink, make_zenoh_config

@@ -21,11 +21,10 @@ import logging
 import os
 import signal
 import sys
-import traceback
 from pathlib import Path
 
 from . import __version__
-from .errors import BadConfig, CameraUnavailable, CrawlerError
+from .errors import BadConfig, CameraUnavailable, CrawlerError, fail
 
 PROG = "crawlerd"
 DEFAULT_CONFIG = "/etc/crawler/crawlerd.toml"
@@ -91,16 +90,11 @@ def load_config(args):
     tilt = args.tilt if args.tilt is not None else (args.sim_tilt if args.sim else None)
     if tilt is not None:
         overrides.append(f"mount.tilt_deg={tilt}")
-    if args.state_dir:
-        overrides.append(f"state.directory={json.dumps(args.state_dir)}")
-    if args.zenoh_mode:
-        overrides.append(f"zenoh.mode={json.dumps(args.zenoh_mode)}")
-    if args.listen:
-        overrides.append(f"zenoh.listen={json.dumps(args.listen)}")
-    if args.connect:
-        overrides.append(f"zenoh.connect={json.dumps(args.connect)}")
-    if args.zenoh_config:
-        overrides.append(f"zenoh.config={json.dumps(args.zenoh_config)}")
+    for flag, key in (("state_dir", "state.directory"), ("zenoh_mode", "zenoh.mode"),
+                      ("listen", "zenoh.listen"), ("connect", "zenoh.connect"),
+                      ("zenoh_config", "zenoh.config")):
+        if getattr(args, flag):
+            overrides.append(f"{key}={json.dumps(getattr(args, flag))}")
     if args.no_multicast:
         overrides.append("zenoh.multicast=false")
     path = args.config or os.environ.get("CRAWLERD_CONFIG")
@@ -295,10 +289,7 @@ def main(argv=None) -> int:
 
 
 def _fail(exc, code: int) -> int:
-    if os.environ.get("CRAWLERD_DEBUG") == "1":
-        traceback.print_exc()
-    print(f"{PROG}: error: {exc}", file=sys.stderr)
-    return code
+    return fail(PROG, exc, code)
 
 
 if __name__ == "__main__":

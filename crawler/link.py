@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import logging
 import threading
-import time
 from concurrent.futures import Future, TimeoutError as FutureTimeout
 from pathlib import Path
 

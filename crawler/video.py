@@ -108,6 +108,7 @@ class VideoReplay:
         stream = self._container.streams.video[0]
         stream.thread_type = "AUTO"
         first = None
+        last = float("-inf")
         n = 0
         try:
             for frame in self._container.decode(stream):
@@ -115,7 +116,7 @@ class VideoReplay:
                 if first is None:
                     first = t
                     self._check_size(frame)
-                if n and t <= last:
+                if t <= last:
                     raise VideoError(f"{self.path.name}: frame {n} time {t:.6f} s does not increase "
                                      f"({self.timing})")
                 last = t

@@ -1,7 +1,5 @@
 """LEDs on gpiozero's mock pins, the checkpoint file, and the systemd notify protocol."""
 
-import json
-import os
 import socket
 
 import pytest

@@ -13,11 +13,10 @@ import signal
 import sys
 import threading
 import time
-import traceback
 from pathlib import Path
 
 from .. import __version__
-from ..errors import BadConfig, CrawlerError
+from ..errors import BadConfig, CrawlerError, fail
 from ..link import ZENOH_MODES
 from .fleet import SILENT_AFTER_S, Event, FleetState
 from .net import NAME_RE, DaemonError, Feed, NoAnswer, control, open_session
@@ -402,7 +401,4 @@ def main(argv=None) -> int:
 
 
 def _fail(exc, code: int) -> int:
-    if os.environ.get("CRAWLERD_DEBUG") == "1":
-        traceback.print_exc()
-    print(f"{PROG}: error: {exc}", file=sys.stderr)
-    return code
+    return fail(PROG, exc, code)
