@@ -66,23 +66,25 @@ class WindowPlan:
 
 
 def default_window(modes, active_size, output_size, vflip: bool = False):
-    """The thesis's view on the sensor: a window of the output's aspect just under the centre row,
+    """The thesis's view on the sensor: a window of the output's aspect under the centre row,
     centred across (above the centre in sensor rows if the camera is mounted upside down), as large
-    as the fastest mode that can deliver output_size without upscaling allows, at most half the
-    array tall."""
+    as the fastest mode that can deliver output_size without upscaling allows (at most half the
+    array tall). If that mode's crop leaves too little room below the centre, the window moves up
+    just enough."""
     aw, ah = active_size
     ow, oh = output_size
+    centre = ah // 2
     for mode in sorted(modes, key=lambda m: -m["fps"]):
         mx, my, mw, mh = mode["crop_limits"]
-        centre = ah // 2
-        room_h = (centre - my) if vflip else (my + mh - centre)
-        h = min(ah // 2, room_h, int(mw * oh / ow))
-        w = int(h * ow / oh)
-        h, w = h & ~1, w & ~1
-        if h <= 0 or w * mode["size"][0] / mw < ow or h * mode["size"][1] / mh < oh:
+        need = -(-oh * mh // mode["size"][1])           # native rows that give oh mode rows
+        room = (centre - my) if vflip else (my + mh - centre)
+        h = min(ah // 2, max(room, need), mh, mw * oh // ow) & ~1
+        w = (h * ow // oh) & ~1
+        if h < need or w * mode["size"][0] / mw < ow:
             continue
         x = max(mx, min(aw // 2 - w // 2, mx + mw - w)) & ~1
         y = centre - h if vflip else centre
+        y = max(my, min(y, my + mh - h)) & ~1
         return (x, y, w, h)
     raise BadConfig(f"no sensor mode can deliver [camera] output_size = {list(output_size)}; "
                     "choose a smaller output_size or set [camera] sensor_window")
