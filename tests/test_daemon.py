@@ -217,3 +217,19 @@ def test_sigterm_exits_cleanly_and_a_killed_daemon_resumes(tmp_path):
         assert json.loads(out.strip().splitlines()[-1])["distance_m"] >= saved["distance_m"]
     finally:
         operator.close()
+
+
+def test_no_picamera2_says_how_to_install_it_or_falls_back_to_a_recording(render_run, crawlerd, tmp_path,
+                                                                          caplog):
+    try:
+        import picamera2  # noqa: F401
+        pytest.skip("picamera2 is installed here: this is a Pi")
+    except ImportError:
+        pass
+    rc, s, err = crawlerd("--no-publish", "--state-dir", tmp_path / "state")
+    assert rc == 2 and "sudo apt install python3-picamera2" in err and "--system-site-packages" in err
+    run = render_run("tilt0", tilt_deg=0, speed_m_s=0.2, duration_s=2.0)
+    rc, s, err = crawlerd("--no-publish", "--state-dir", tmp_path / "state", "--max-frames", 20,
+                          "--set", f"camera.fallback_video={json.dumps(str(run['h264']))}")
+    assert rc == 0 and s["frames"] == 20 and s["source"].startswith("FALLBACK replay tilt0.h264")
+    assert "CAMERA UNAVAILABLE" in caplog.text and "FALLING BACK TO RECORDING" in caplog.text

@@ -112,3 +112,32 @@ def test_command_queue_hands_requests_to_the_loop_and_times_out():
     slow = CommandQueue(timeout_s=0.1)
     with pytest.raises(RuntimeError, match="busy"):
         slow.submit({"cmd": "reset"})
+
+
+def test_publishing_resumes_when_the_operator_comes_back(link, zenoh_pair):
+    import zenoh
+
+    def operator_session():
+        s = zenoh.open(make_zenoh_config("peer", connect=zenoh_pair["connect"], multicast=False))
+        got = []
+        s.declare_subscriber("crawler/c1/distance", lambda x: got.append(json.loads(x.payload.to_string())))
+        return s, got
+
+    def publish_until(got, timeout=10):
+        def one():
+            link.publish_estimate({"t_s": 0.0, "distance_m": 1.0, "speed_m_s": 0.1})
+            return bool(got)
+        return wait_for(one, timeout=timeout, interval=0.1)
+
+    first, got1 = operator_session()
+    assert publish_until(got1)
+    first.close()                                   # the laptop's cable is pulled
+    for _ in range(5):
+        link.publish_estimate({"t_s": 0.1, "distance_m": 1.1, "speed_m_s": 0.1})   # into the void: no error
+    assert link.last_error is None
+    second, got2 = operator_session()               # plugged back in
+    try:
+        assert publish_until(got2)
+        assert got2[-1]["seq"] > got1[-1]["seq"]
+    finally:
+        second.close()

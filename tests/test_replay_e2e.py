@@ -167,3 +167,55 @@ def test_console_script_runs_as_a_subprocess(render_run):
     assert p.returncode == 0, p.stderr
     s = json.loads(p.stdout.strip().splitlines()[-1])
     assert {"frames", "duration_s", "distance_m", "fps_processed"} <= set(s)
+
+
+def test_roll_about_the_pipe_axis_is_measured(tmp_path):
+    from crawler import config
+    from crawler.odometry import Odometer
+    from hw_sim import SimConfig, Simulator
+
+    sim = Simulator(SimConfig(tilt_deg=10, speed_m_s=0.2, roll_deg=4.0, roll_hz=0.25, duration_s=1.0))
+    cfg = config.load(None, ["mount.tilt_deg=10"])
+    g = cfg.geometry()
+    odo = Odometer(g.camera, g.projection, g.roi, cfg.odometry_params())
+    worst = 0.0
+    for f in sim.frames():
+        est = odo.update(f.image, f.t_s)
+        true_roll = np.degrees(sim.pose(f.t_s)["roll"] - sim.pose(0.0)["roll"])
+        worst = max(worst, abs(est.roll_deg - true_roll))
+    assert abs(true_roll) > 3.0 and worst < 0.05          # degrees, over a 4 deg swing
+
+
+def test_lens_distortion_is_removed_from_the_points(render_run, crawlerd):
+    k = (-0.25, 0.08, 0.0, 0.0, 0.0)
+    run = render_run("barrel", tilt_deg=24, speed_m_s=0.3, distortion=k, **SHORT)
+    rc, plain, _ = crawlerd("--replay", run["h264"], "--tilt", 24)
+    rc2, fixed, _ = crawlerd("--replay", run["h264"], "--tilt", 24, "--set", f"camera.distortion={list(k)}")
+    assert rc == rc2 == 0
+    assert err_pct(fixed, run["truth"]) < 0.3
+    assert err_pct(plain, run["truth"]) > 3 * err_pct(fixed, run["truth"])
+
+
+def test_mp4_times_from_the_container_and_realtime_pacing(render_run, crawlerd, tmp_path):
+    import time
+    from fractions import Fraction
+
+    import av
+
+    run = render_run("tilt0", tilt_deg=0, speed_m_s=0.2, **SHORT)
+    mp4 = tmp_path / "run.mp4"
+    with av.open(str(run["h264"])) as src, av.open(str(mp4), "w") as dst:
+        stream = dst.add_stream("libx264", rate=Fraction(30))
+        stream.width, stream.height, stream.pix_fmt = 960, 720, "yuv420p"
+        for i, frame in enumerate(src.decode(video=0)):
+            frame.pts, frame.time_base = i, Fraction(1, 30)
+            for packet in stream.encode(frame):
+                dst.mux(packet)
+        for packet in stream.encode():
+            dst.mux(packet)
+    rc, s, _ = crawlerd("--replay", mp4)
+    assert rc == 0 and s["source"].endswith("(times from the container)")
+    assert s["duration_s"] == pytest.approx(2.0, abs=1e-3) and err_pct(s, run["truth"]) < 0.3
+    t0 = time.monotonic()
+    rc, s, _ = crawlerd("--replay", run["h264"], "--realtime", "--max-frames", 16)
+    assert rc == 0 and time.monotonic() - t0 >= 0.5          # 15 frame intervals at 30 fps
