@@ -173,23 +173,24 @@ def plan_for_mode(mode, window, active_size, output_size, fps, lens, line_time_s
 
 
 def import_picamera2():
-    """The real Picamera2 class, or CameraUnavailable with the install recipe."""
+    """The real Picamera2 and MappedArray classes, or CameraUnavailable with the install recipe."""
     try:
-        from picamera2 import Picamera2
+        from picamera2 import MappedArray, Picamera2
     except ImportError:
         raise CameraUnavailable(INSTALL_HINT) from None
-    return Picamera2
+    return Picamera2, MappedArray
 
 
 class Picamera2Source:
     """Frames from a (real or fake) Picamera2 on a planned window; `frames()` yields Y-plane views."""
 
-    def __init__(self, camera_class=None, *, camera_num: int = 0, window=None, output_size=(240, 240),
+    def __init__(self, camera_class=None, *, mapped_array=None, camera_num: int = 0, window=None, output_size=(240, 240),
                  fps: float = 60.0, exposure_us: int = 2000, analogue_gain: float = 4.0,
                  fov_deg=None, calibration: Camera | None = None, line_time_us: float | None = None,
                  hflip: bool = False,
                  vflip: bool = False, capture_timeout_s: float = 2.0, description: str = "camera"):
         self.camera_class = camera_class
+        self.mapped_array = mapped_array    # picamera2.MappedArray: frames without a copy
         self.camera_num = camera_num
         self.window = window
         self.output_size = tuple(output_size)
@@ -210,7 +211,9 @@ class Picamera2Source:
         self.warnings: list[str] = []
 
     def __enter__(self):
-        cls = self.camera_class or import_picamera2()
+        if self.camera_class is None:
+            self.camera_class, self.mapped_array = import_picamera2()
+        cls = self.camera_class
         try:
             info = cls.global_camera_info()
         except Exception as exc:
@@ -298,27 +301,32 @@ class Picamera2Source:
             self.cam.set_controls(controls)
 
     def frames(self):
+        """Y-plane views, valid until the next frame: with a MappedArray class they are the camera's
+        own buffer (no copy), released back to the camera when the consumer asks for the next."""
         w, h = self.output_size
         t0 = None
         n = 0
         while True:
             request = self._capture()
             try:
-                yuv = request.make_array("main")
                 md = request.get_metadata()
+                ts = md.get("SensorTimestamp")
+                if ts is None:
+                    raise CrawlerError("camera metadata carries no SensorTimestamp")
+                # SensorTimestamp marks the start of readout; the frame's time is the middle of its
+                # top row's exposure (docs/conventions.md)
+                t_ns = ts + self.plan.top_row_s * 1e9 - md.get("ExposureTime", self.exposure_us) * 500.0
+                if t0 is None:
+                    t0 = t_ns
+                    self.first_sensor_ns = ts
+                self.last_sensor_ns = ts
+                if self.mapped_array is not None:
+                    with self.mapped_array(request, "main", write=False) as mapped:
+                        yield Frame(n, (t_ns - t0) / 1e9, mapped.array[:h, :w])
+                else:
+                    yield Frame(n, (t_ns - t0) / 1e9, request.make_array("main")[:h, :w])
             finally:
                 request.release()
-            ts = md.get("SensorTimestamp")
-            if ts is None:
-                raise CrawlerError("camera metadata carries no SensorTimestamp")
-            # SensorTimestamp marks the start of readout; the frame's time is the middle of its
-            # top row's exposure (docs/conventions.md)
-            t_ns = ts + self.plan.top_row_s * 1e9 - md.get("ExposureTime", self.exposure_us) * 500.0
-            if t0 is None:
-                t0 = t_ns
-                self.first_sensor_ns = ts
-            self.last_sensor_ns = ts
-            yield Frame(n, (t_ns - t0) / 1e9, yuv[:h, :w])
             n += 1
             self.frames_read = n
 

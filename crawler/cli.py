@@ -109,7 +109,7 @@ def make_replay_source(cfg, video, pts=None, fps=None):
     return VideoReplay(video, pts=pts, fps=fps, expect_size=(cfg.camera["width"], cfg.camera["height"]))
 
 
-def make_camera_source(cfg, camera_class=None, description="camera"):
+def make_camera_source(cfg, camera_class=None, description="camera", mapped_array=None):
     from .camera import Picamera2Source
 
     c = cfg.camera
@@ -119,7 +119,8 @@ def make_camera_source(cfg, camera_class=None, description="camera"):
         from .geometry import Camera
 
         calibration = Camera.from_calibration(c["calibration"])
-    return Picamera2Source(camera_class, camera_num=c["camera_num"], window=c["sensor_window"],
+    return Picamera2Source(camera_class, mapped_array=mapped_array, camera_num=c["camera_num"],
+                           window=c["sensor_window"],
                            calibration=calibration,
                            output_size=tuple(c["output_size"]), fps=c["fps"], exposure_us=c["exposure_us"],
                            analogue_gain=c["analogue_gain"], fov_deg=fov, line_time_us=c["line_time_us"],
@@ -168,10 +169,12 @@ def run(args, cfg) -> int:
     elif mode == "sim":
         from gpiozero.pins.mock import MockFactory, MockPWMPin
 
+        from hw_sim.picamera2_fake import MappedArray
+
         camera_class, world = make_sim(cfg, args)
         truth = world.true_distance_m
         pin_factory = MockFactory(pin_class=MockPWMPin)
-        source = make_camera_source(cfg, camera_class, description="sim")
+        source = make_camera_source(cfg, camera_class, description="sim", mapped_array=MappedArray)
     else:
         source = make_camera_source(cfg)
 

@@ -379,7 +379,7 @@ class Odometer:
         delta = step - self._last_step
         self._motion_v = delta * self._jv
         self._last_step, self._last_lat = step, lat
-        self._good_roi, self._good_coarse = img, None   # a view: sources hand out fresh buffers
+        self._good_roi, self._good_coarse = img.copy(), None   # the frame buffer goes back to the camera
         self._sigmas.append(sigma)
         if abs(step) > 3 * self.m_per_px:
             self._spreads.append(ratio)

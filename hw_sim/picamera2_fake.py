@@ -625,6 +625,7 @@ class CompletedRequest:
         self.stop_count, self.configure_count = picam2.stop_count, picam2.configure_count
         self.config = picam2.camera_config.copy()
         self._md, self._sim, self._t, self._b, self._grey = metadata, sim, t_s, brightness, None
+        self._mapped: dict[str, np.ndarray] = {}
 
     def acquire(self) -> None:
         if self.ref_count == 0:
@@ -638,6 +639,8 @@ class CompletedRequest:
         if self.ref_count == 0:
             self.picam2._released(self)
             self.request, self.config = None, {}
+            for buf in self._mapped.values():    # the camera refills this memory with a new frame
+                buf[...] = 0
 
     def get_metadata(self) -> dict:
         assert self.request is not None
@@ -674,6 +677,33 @@ class CompletedRequest:
 
     def make_buffer(self, name: str) -> np.ndarray:
         return self.make_array(name).ravel()
+
+    def _mapped_buffer(self, name: str) -> np.ndarray:
+        if self.request is None:
+            raise RuntimeError("CompletedRequest: mapping a released request")
+        if name not in self._mapped:
+            self._mapped[name] = self.make_array(name)
+        return self._mapped[name]
+
+
+class MappedArray:
+    """picamera2.MappedArray(request, stream, reshape=True, write=True): the request's buffer in place,
+    no copy. Valid only until the request is released: the fake then zeroes it, as the camera would
+    overwrite it, so a consumer that keeps a view sees the mistake."""
+
+    def __init__(self, request: CompletedRequest, stream: str, reshape: bool = True, write: bool = True):
+        self._request, self._stream, self._write = request, stream, write
+        self.array = None
+
+    def __enter__(self) -> "MappedArray":
+        self.array = self._request._mapped_buffer(self._stream)
+        if not self._write:
+            self.array = self.array.view()
+            self.array.flags.writeable = False
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.array = None
 
 
 def _stream(defaults: dict, updates, raw: bool = False):

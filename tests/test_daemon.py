@@ -19,7 +19,7 @@ from crawler.cli import make_camera_source, make_link
 from crawler.daemon import Daemon
 from crawler.leds import Leds
 from crawler.sdnotify import Notifier
-from hw_sim.picamera2_fake import SimWorld, make_picamera2
+from hw_sim.picamera2_fake import MappedArray, SimWorld, make_picamera2
 
 
 class Rig:
@@ -33,7 +33,8 @@ class Rig:
             f"zenoh.listen={json.dumps(zenoh_pair['listen'])}", "zenoh.multicast=false",
             "camera.fps=60", "camera.capture_timeout_s=0.5", *extra])
         self.world = SimWorld("imx219", tilt_deg=tilt, speed_m_s=speed)
-        self.source = make_camera_source(self.cfg, make_picamera2(self.world), description="sim")
+        self.source = make_camera_source(self.cfg, make_picamera2(self.world), description="sim",
+                                         mapped_array=MappedArray)      # zero-copy frames, as on the Pi
         self.pins = MockFactory(pin_class=MockPWMPin)
         self.leds = Leds([12, 13], brightness=0.8, pin_factory=self.pins)
         self.stop = threading.Event()

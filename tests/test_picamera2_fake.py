@@ -345,3 +345,25 @@ def test_controls_while_running_and_other_streams():
         md = r.get_metadata()
         assert md["SensorTimestamp"] - 1000 * md["ExposureTime"] >= flushed
     cam.close()
+
+
+def test_mapped_array_is_the_request_buffer_until_release():
+    from hw_sim.picamera2_fake import MappedArray, SimWorld, make_picamera2
+
+    cam = make_picamera2(SimWorld("imx219", speed_m_s=0.1))(0)
+    try:
+        cam.configure(cam.create_video_configuration(main={"size": (320, 240), "format": "YUV420"}, raw=None))
+        cam.start()
+        request = cam.capture_request(wait=2.0)
+        with MappedArray(request, "main", write=False) as m:
+            view = m.array
+            assert view.shape == (360, 320) and not view.flags.writeable
+            assert view[:240].std() > 5                       # a textured wall in the Y plane
+            assert (request.make_array("main") == view).all()
+        request.release()
+        assert not view.any()                                 # the camera took the memory back
+        with pytest.raises(RuntimeError):
+            with MappedArray(request, "main"):
+                pass
+    finally:
+        cam.close()
