@@ -2,7 +2,7 @@
 
 Only the sensor mode raises the frame rate (ScalerCrop is an ISP crop), so the plan picks the fastest
 mode whose field of view covers the wanted window, then crops the ISP to exactly that window and scales
-it to a small YUV420 output whose Y plane the odometry reads as it comes. The same plan gives the
+it to a small YUV420 output whose Y plane the odometry reads in place (MappedArray, no copy). The same plan gives the
 odometry the exact intrinsics of the output (mode crop, binning, ScalerCrop and scale) and the rolling
 shutter readout of the window.
 
