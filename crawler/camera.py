@@ -2,9 +2,9 @@
 
 Only the sensor mode raises the frame rate (ScalerCrop is an ISP crop), so the plan picks the fastest
 mode whose field of view covers the wanted window, then crops the ISP to exactly that window and scales
-it to a small YUV420 output whose Y plane the odometry reads in place (MappedArray, no copy). The same plan gives the
-odometry the exact intrinsics of the output (mode crop, binning, ScalerCrop and scale) and the rolling
-shutter readout of the window.
+it to a small YUV420 output whose Y plane the odometry reads in place (MappedArray, no copy). The
+same plan gives the odometry the exact intrinsics of the output (mode crop, binning, ScalerCrop and
+scale) and the rolling shutter readout of the window.
 
 picamera2 is imported only when the camera is opened: it exists only on Raspberry Pi OS (apt
 python3-picamera2). The camera class is injectable, so `--sim` and tests pass hw_sim's fake.
