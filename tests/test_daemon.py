@@ -61,7 +61,8 @@ class Rig:
 
     def finish(self, timeout=30):
         self.stop.set()
-        self.thread.join(timeout)
+        if hasattr(self, "thread"):
+            self.thread.join(timeout)
         self.leds.close()
         self.link.close()
         self.pins.reset()
@@ -234,3 +235,26 @@ def test_no_picamera2_says_how_to_install_it_or_falls_back_to_a_recording(render
                           "--set", f"camera.fallback_video={json.dumps(str(run['h264']))}")
     assert rc == 0 and s["frames"] == 20 and s["source"].startswith("FALLBACK replay tilt0.h264")
     assert "CAMERA UNAVAILABLE" in caplog.text and "FALLING BACK TO RECORDING" in caplog.text
+
+
+def test_a_crash_in_the_loop_still_switches_the_lights_off_and_saves_the_distance(tmp_path, zenoh_pair):
+    class Boom:
+        def write(self, frame, est, odometer):
+            if est.frame == 20:
+                raise ZeroDivisionError("a bug in a sink")
+
+        def close(self):
+            pass
+
+    rig = Rig(tmp_path, zenoh_pair)
+    rig.daemon.sinks.append(Boom())
+    rig.source.__enter__()
+    try:
+        with pytest.raises(ZeroDivisionError):
+            rig.daemon.run()
+        assert rig.led_states() == [0.0, 0.0]
+        saved = json.loads((tmp_path / "state" / "checkpoint.json").read_text())
+        assert saved["frames"] == 21 and saved["distance_m"] == pytest.approx(rig.daemon.distance_m, abs=1e-6)
+    finally:
+        rig.source.__exit__(None, None, None)
+        rig.finish()          # (the loop's own finally already switched off and saved)
