@@ -264,10 +264,14 @@ class Picamera2Source:
         d = p.frame_duration_us
         controls = {"FrameDurationLimits": (d, d), "ExposureTime": self.exposure_us,
                     "AnalogueGain": self.analogue_gain, "ScalerCrop": p.scaler_crop}
-        config = cam.create_video_configuration(
-            main={"size": p.output_size, "format": "YUV420"}, raw=None,
-            sensor={"output_size": tuple(p.mode["size"]), "bit_depth": p.mode["bit_depth"]},
-            controls=controls, buffer_count=4)
+        kw = dict(raw=None, sensor={"output_size": tuple(p.mode["size"]), "bit_depth": p.mode["bit_depth"]},
+                  controls=controls, buffer_count=4)
+        main = {"size": p.output_size, "format": "YUV420"}
+        try:
+            # picamera2 >= 0.3.23 would otherwise centre an aspect-preserving crop over our window
+            config = cam.create_video_configuration(main=dict(main, preserve_ar=False), **kw)
+        except ValueError:     # an older picamera2 has no preserve_ar
+            config = cam.create_video_configuration(main=main, **kw)
         cam.configure(config)
         cam.start()
         self._check_crop()
@@ -294,6 +298,11 @@ class Picamera2Source:
         try:
             return self.cam.capture_request(wait=self.capture_timeout_s)
         except TimeoutError:
+            # the timed-out job would later hold a buffer nobody releases (picamera2 keeps it queued)
+            try:
+                self.cam.cancel_all_and_flush()
+            except Exception:
+                _log.debug("cancel_all_and_flush failed", exc_info=True)
             raise CameraStalled(f"camera delivered no frame for {self.capture_timeout_s:g} s") from None
 
     def set_controls(self, controls: dict):

@@ -21,6 +21,7 @@ import logging
 import os
 import signal
 import sys
+import tempfile
 from pathlib import Path
 
 from . import __version__
@@ -76,9 +77,19 @@ def build_parser() -> argparse.ArgumentParser:
     out = p.add_argument_group("output")
     out.add_argument("--log", metavar="FILE.jsonl", help="one JSON object per processed frame")
     out.add_argument("--annotate", metavar="OUT.mp4", help="write the frames with ROI, tracks, distance, speed")
-    out.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
+    out.add_argument("--max-frames", type=_positive_int, metavar="N", help="stop after N frames")
     out.add_argument("-v", "--verbose", action="store_true", help="log at debug level")
     return p
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a whole number >= 1")
+    return value
 
 
 def load_config(args):
@@ -97,6 +108,9 @@ def load_config(args):
             overrides.append(f"{key}={json.dumps(getattr(args, flag))}")
     if args.no_multicast:
         overrides.append("zenoh.multicast=false")
+    if args.sim and not args.state_dir and not any(o.startswith("state.directory=") for o in args.set):
+        # a simulated run must never overwrite the real run's checkpoint on the crawler
+        overrides.append(f"state.directory={json.dumps(str(Path(tempfile.gettempdir()) / 'crawlerd-sim'))}")
     path = args.config or os.environ.get("CRAWLERD_CONFIG")
     if path is None and Path(DEFAULT_CONFIG).is_file():
         path = DEFAULT_CONFIG
@@ -139,11 +153,22 @@ def make_sim(cfg, args):
     except ValueError:
         raise BadConfig(f"--sim-featureless {args.sim_featureless} must be A:B with A < B in metres, "
                         "e.g. 0.5:0.8") from None
-    world = SimWorld(sensor=args.sim_sensor, tilt_deg=cfg.mount["tilt_deg"], speed_m_s=args.sim_speed,
-                     profile=args.sim_profile, seed=args.sim_seed, featureless=featureless,
-                     pipe_diameter_m=cfg.mount["pipe_diameter_m"], car_width_m=cfg.mount["car_width_m"],
-                     offset_m=cfg.mount["camera_offset_m"], camera_height_m=cfg.mount["height_m"])
+    from hw_sim import SimError
+
+    try:
+        world = _sim_world(SimWorld, cfg, args, featureless)
+    except (SimError, ValueError) as exc:
+        flags = {"speed_m_s": "--sim-speed", "tilt_deg": "--sim-tilt (or mount.tilt_deg)"}
+        field = getattr(exc, "field", "")
+        raise BadConfig(f"simulator: {exc}" + (f"; set {flags[field]}" if field in flags else "")) from None
     return make_picamera2(world), world
+
+
+def _sim_world(SimWorld, cfg, args, featureless):
+    return SimWorld(sensor=args.sim_sensor, tilt_deg=cfg.mount["tilt_deg"], speed_m_s=args.sim_speed,
+                    profile=args.sim_profile, seed=args.sim_seed, featureless=featureless,
+                    pipe_diameter_m=cfg.mount["pipe_diameter_m"], car_width_m=cfg.mount["car_width_m"],
+                    offset_m=cfg.mount["camera_offset_m"], camera_height_m=cfg.mount["height_m"])
 
 
 def make_link(cfg, daemon_ref):
@@ -247,7 +272,7 @@ def run(args, cfg) -> int:
     print(json.dumps(daemon.summary()), flush=True)
     if stats.error:
         print(f"{PROG}: error: {stats.error}", file=sys.stderr)
-        return 1
+        return 2 if stats.frames == 0 else 1    # nothing measured: the input was bad
     for w in warnings:
         print(f"{PROG}: warning: {w}", file=sys.stderr)
     return 0

@@ -15,7 +15,7 @@ from typing import Any
 
 from .errors import BadConfig
 from .flow import FlowParams
-from .geometry import METHODS, Camera, Mount, check_view, make_projection
+from .geometry import METHODS, Camera, Mount, check_distortion, check_view, make_projection
 from .odometry import OdometryParams
 
 _NUM = (int, float)
@@ -51,11 +51,26 @@ SCHEMA: dict[str, dict[str, tuple[Any, Any]]] = {
         "active_high": (bool, True), "auto_brightness": (bool, False), "target_grey": (_NUM, 110.0),
     },
     "zenoh": {
-        "mode": (str, "peer"), "listen": (list, []), "connect": (list, []), "config": (str, None),
+        "mode": (str, None), "listen": (list, []), "connect": (list, []), "config": (str, None),
         "multicast": (bool, True), "publish_hz": (_NUM, 30.0), "status_hz": (_NUM, 1.0),
     },
     "state": {"directory": (str, "/var/lib/crawlerd"), "checkpoint_s": (_NUM, 1.0)},
 }
+
+
+def _endpoint_ok(endpoint: str) -> bool:
+    """protocol/address[:port][#config]; IP endpoints need a port in range."""
+    proto, sep, rest = endpoint.partition("/")
+    if not sep or not proto.isalnum() and proto not in ("unixsock-stream", "unixpipe") or not rest:
+        return False
+    if proto in ("tcp", "udp", "tls", "quic", "ws"):
+        host, colon, port = rest.split("#")[0].rpartition(":")
+        if not colon or not host or not port.isdigit() or not 0 < int(port) < 65536:
+            return False
+        parts = host.split(".")
+        if len(parts) == 4 and all(p.isdigit() for p in parts):
+            return all(int(p) < 256 for p in parts)
+    return True
 
 
 def _type_name(types) -> str:
@@ -103,8 +118,12 @@ def load(path: str | Path | None = None, overrides: list[str] = ()) -> "Config":
             text = path.read_text()
         except FileNotFoundError:
             raise BadConfig(f"config file {str(path)!r} not found; pass --config PATH") from None
+        except IsADirectoryError:
+            raise BadConfig(f"config file {str(path)!r} is a folder; pass the .toml file") from None
         except OSError as exc:
             raise BadConfig(f"config file {str(path)!r} cannot be read: {exc.strerror}") from None
+        except UnicodeDecodeError:
+            raise BadConfig(f"config file {str(path)!r} is not UTF-8 text (a TOML file is)") from None
         try:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as exc:
@@ -218,11 +237,13 @@ class Config:
             raise BadConfig(f"[leds] brightness = {l['brightness']} must be between 0 and 1")
         if not 0 <= l["target_grey"] <= 255:
             raise BadConfig(f"[leds] target_grey = {l['target_grey']} must be between 0 and 255")
-        if z["mode"] not in ("peer", "client", "router"):
+        if z["mode"] not in (None, "peer", "client", "router"):
             raise BadConfig(f"[zenoh] mode = {z['mode']!r} must be peer, client or router")
         for k in ("listen", "connect"):
-            if not all(isinstance(e, str) and "/" in e for e in z[k]):
-                raise BadConfig(f"[zenoh] {k} = {z[k]!r} must be endpoints like 'tcp/192.168.1.10:7447'")
+            for e in z[k]:
+                if not (isinstance(e, str) and _endpoint_ok(e)):
+                    raise BadConfig(f"[zenoh] {k} endpoint {e!r} must look like 'tcp/192.168.1.10:7447' "
+                                    "(protocol/address:port, port 1..65535)")
         for k in ("publish_hz", "status_hz"):
             if not 0 < z[k] <= 1000:
                 raise BadConfig(f"[zenoh] {k} = {z[k]} must be between 0 and 1000")
@@ -254,6 +275,10 @@ class Config:
         if c["calibration"]:
             cam = Camera.from_calibration(c["calibration"], **kw)
             if (cam.width, cam.height) != (c["width"], c["height"]):
+                if abs(cam.width * c["height"] - cam.height * c["width"]) > 0.01 * cam.width * c["height"]:
+                    raise BadConfig(
+                        f"[camera] calibration is for {cam.width}x{cam.height} frames, another shape than "
+                        f"[camera] width/height {c['width']}x{c['height']}; calibrate at the video's size")
                 cam = cam.with_size(c["width"], c["height"])
             return cam
         dist = tuple(float(v) for v in (c["distortion"] or ()))
@@ -269,6 +294,7 @@ class Config:
         camera, mount = self.make_camera(), self.make_mount()
         projection = make_projection(self.odometry["method"], mount)
         roi = self.roi()
+        check_distortion(camera, roi)
         # the exact model decides whether the view is usable, whatever method then measures
         exact = make_projection("cylinder", mount)
         worst = check_view(camera, exact, roi, self.odometry["max_incidence_deg"])

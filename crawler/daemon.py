@@ -180,7 +180,7 @@ class Daemon:
                     break
         except CrawlerError as exc:
             self.last_error = self.stats.error = str(exc)
-            _log.error("%s", exc)
+            _log.debug("run ended: %s", exc)          # the caller reports it, once
         finally:
             self.stats.wall_s = self.clock() - self.started
             self.leds.off()

@@ -88,13 +88,17 @@ class Camera:
                 h = int(fs.getNode("image_height").real())
                 if k is None or w <= 0 or h <= 0:
                     raise KeyError("camera_matrix/image_width/image_height")
-        except (KeyError, ValueError, TypeError, cv2.error) as exc:
+        except (KeyError, ValueError, TypeError, cv2.error, SystemError, UnicodeDecodeError) as exc:
             raise BadConfig(
                 f"[camera] calibration = {str(path)!r} is not an OpenCV calibration ({exc}); expected "
                 'JSON {"camera_matrix": [[fx,0,cx],[0,fy,cy],[0,0,1]], "dist_coeffs": [...], '
                 '"image_size": [w, h]} or a calibrateCamera YAML') from None
-        return cls(w, h, float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2]),
-                   distortion=tuple(float(x) for x in dist), **kw)
+        fx, fy, cx, cy = float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])
+        if not (w > 0 and h > 0 and fx > 0 and fy > 0 and np.isfinite([fx, fy, cx, cy]).all()
+                and np.isfinite(dist).all()):
+            raise BadConfig(f"[camera] calibration = {str(path)!r} holds impossible intrinsics "
+                            f"(fx={fx}, fy={fy}, cx={cx}, cy={cy}, image_size={w}x{h}); recalibrate")
+        return cls(w, h, fx, fy, cx, cy, distortion=tuple(float(x) for x in dist), **kw)
 
     def window(self, x0: float, y0: float, w: float, h: float, out_w: int, out_h: int) -> "Camera":
         """The camera seen through a sensor sub-rectangle scaled to out_w x out_h (pixel centres kept)."""
@@ -326,6 +330,22 @@ def roi_outline(roi: tuple[int, int, int, int], n: int = 9) -> np.ndarray:
     ys = np.linspace(y, y + h - 1, n)
     return np.vstack([np.column_stack([xs, np.full(n, y)]), np.column_stack([xs, np.full(n, y + h - 1)]),
                       np.column_stack([np.full(n, x), ys]), np.column_stack([np.full(n, x + w - 1), ys])])
+
+
+def check_distortion(camera: Camera, roi) -> None:
+    """Refuse distortion coefficients that fold the image over itself inside the ROI.
+
+    A lens model that is not invertible there turns every tracked point into nonsense metres.
+    """
+    if not any(camera.distortion):
+        return
+    pts = roi_outline(roi, 17)
+    back = camera.to_pixels(camera.normalise(pts))
+    err = np.abs(back - pts).max() if np.isfinite(back).all() else np.inf
+    if err > 0.01:
+        raise BadConfig(f"[camera] distortion = {list(camera.distortion)} cannot be undone inside the ROI "
+                        f"(a point comes back {err:.3g} px away); check the coefficients and their order "
+                        "[k1, k2, p1, p2, k3]")
 
 
 def check_view(camera: Camera, projection: Projection, roi, max_incidence_deg: float) -> float:

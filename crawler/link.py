@@ -27,7 +27,7 @@ _log = logging.getLogger(__name__)
 ZENOH_MODES = ("peer", "client", "router")
 
 
-def make_zenoh_config(mode: str = "peer", listen=(), connect=(), config_file: str | None = None,
+def make_zenoh_config(mode: str | None = "peer", listen=(), connect=(), config_file: str | None = None,
                       multicast: bool = True):
     """One place that turns flags/TOML into a zenoh.Config, naming the culprit when it fails."""
     import zenoh
@@ -42,10 +42,13 @@ def make_zenoh_config(mode: str = "peer", listen=(), connect=(), config_file: st
             raise BadConfig(f"[zenoh] config = {config_file!r} is not a valid zenoh config: {exc}") from None
     else:
         conf = zenoh.Config()
-    if mode not in ZENOH_MODES:
+    if mode is None and not config_file:
+        mode = "peer"
+    if mode is not None and mode not in ZENOH_MODES:
         raise BadConfig(f"--zenoh-mode {mode!r} must be one of {', '.join(ZENOH_MODES)}")
     try:
-        conf.insert_json5("mode", json.dumps(mode))
+        if mode is not None:     # else the config file's own mode stands
+            conf.insert_json5("mode", json.dumps(mode))
         if listen:
             conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
         if connect:

@@ -25,7 +25,7 @@ class Notifier:
         self._last_ping = None
         self._sock = None
         if self.address:
-            self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+            self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC)
 
     @property
     def enabled(self) -> bool:

@@ -37,6 +37,9 @@ class Annotator:
         import av
 
         self.path = Path(path)
+        if not self.path.parent.is_dir():
+            raise CrawlerError(f"cannot write annotated video {str(self.path)!r}: folder "
+                               f"{str(self.path.parent)!r} does not exist")
         try:
             self._out = av.open(str(self.path), "w")
         except (av.error.FFmpegError, OSError, ValueError) as exc:
@@ -75,14 +78,22 @@ class Annotator:
             self._stream.options = {"crf": "23", "preset": "veryfast"}
         img = img[: self._stream.height, : self._stream.width]
         vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")
-        for packet in self._stream.encode(vf):
-            self._out.mux(packet)
+        try:
+            for packet in self._stream.encode(vf):
+                self._out.mux(packet)
+        except (av.error.FFmpegError, OSError) as exc:
+            raise CrawlerError(f"cannot write annotated video {str(self.path)!r}: {exc}") from None
 
     def close(self):
-        if self._stream is not None:
-            for packet in self._stream.encode():
-                self._out.mux(packet)
-        self._out.close()
+        import av
+
+        try:
+            if self._stream is not None:
+                for packet in self._stream.encode():
+                    self._out.mux(packet)
+            self._out.close()
+        except (av.error.FFmpegError, OSError) as exc:
+            raise CrawlerError(f"cannot finish annotated video {str(self.path)!r}: {exc}") from None
 
 
 class Progress:

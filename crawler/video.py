@@ -67,12 +67,15 @@ class VideoReplay:
         self.warnings: list[str] = []
         self._container = None
         self._times = None
+        self.packets = None
 
     def __enter__(self):
         import av   # PyAV: python3-av on Raspberry Pi OS
 
         if self.fps is not None and not self.fps > 0:
             raise VideoError(f"--fps {self.fps} must be > 0")
+        if self.path.is_dir():
+            raise VideoError(f"video {str(self.path)!r} is a folder; pass the recording's file")
         if not self.path.is_file():
             raise VideoError(f"video {str(self.path)!r} not found")
         try:
@@ -85,6 +88,7 @@ class VideoReplay:
         if self.pts_path is not None:
             self._times = read_pts(self.pts_path)
             self.timing = f"times from {self.pts_path.name}"
+            self._check_count(self.pts_path)
         elif self.fps is not None:
             self.timing = f"times from --fps {self.fps:g}"
         else:
@@ -92,6 +96,7 @@ class VideoReplay:
             if self._container.format.name in ("h264", "hevc", "mjpeg") and sidecar.is_file():
                 self._times = read_pts(sidecar)
                 self.timing = f"times from {sidecar.name} (found beside the video)"
+                self._check_count(sidecar)
             else:
                 self.timing = "times from the container"
         self.description = f"replay {self.path.name} ({self.timing})"
@@ -127,11 +132,36 @@ class VideoReplay:
             raise VideoError(f"{self.path.name}: stream breaks after frame {n}: {exc}") from None
         if n == 0:
             raise VideoError(f"video {str(self.path)!r} holds no decodable frames")
+        lost = (self.packets or n) - n
+        if self._times is not None and lost > 1:
+            # frames that did not decode leave no trace: every later frame took an earlier one's time
+            raise VideoError(f"{self.path.name}: {lost} of {self.packets} frames could not be decoded, so "
+                             "the pts times after the first of them cannot be matched to frames; the "
+                             "distance is reported up to the end, speeds after that point are suspect")
         if self._times is not None and len(self._times) > n:
-            msg = (f"pts file has {len(self._times)} timestamps but the video has {n} frames; "
-                   "the extra timestamps were ignored")
+            msg = (f"pts file has {len(self._times)} timestamps but the video has {n} frames; the extra "
+                   "timestamps were ignored. If the recording lost frames inside rather than at its end, "
+                   "the times (and speeds) after the gap are wrong; the distance is not affected")
             self.warnings.append(msg)
             _log.warning(msg)
+
+    def _check_count(self, pts_path):
+        """A pts file belongs to a recording frame for frame: count the stream's frames first.
+
+        Demuxing (no decoding) is cheap. More frames than timestamps: the wrong pts file. Fewer: a
+        recording cut short (warned about at the end).
+        """
+        import av
+
+        try:
+            with av.open(str(self.path)) as c:
+                self.packets = sum(1 for p in c.demux(video=0) if p.size)
+        except av.error.FFmpegError:
+            self.packets = None
+            return
+        if self.packets > len(self._times):
+            raise VideoError(f"{self.path.name} has {self.packets} frames but {pts_path.name} only "
+                             f"{len(self._times)} timestamps; is it the right pts file?")
 
     def _time_of(self, frame, n: int) -> float:
         if self._times is not None:

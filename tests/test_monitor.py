@@ -175,7 +175,7 @@ def test_the_default_command_is_watch():
     assert (args.command, args.name, args.level, args.connect, args.no_multicast, args.timeout) == (
         "led", "c1", 0.5, ["tcp/h:1"], True, 3.0)
     args = p.parse_args(with_default_command(["--record", "r.jsonl"], p))
-    assert (args.command, args.name, args.record, args.zenoh_mode, args.connect) == ("watch", "*", "r.jsonl", "peer", [])
+    assert (args.command, args.name, args.record, args.zenoh_mode, args.connect) == ("watch", "*", "r.jsonl", None, [])
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -105,21 +105,23 @@ def test_bad_input_is_one_line_and_nonzero(render_run, crawlerd, tmp_path):
     junk = tmp_path / "junk.h264"
     junk.write_bytes(bytes(range(256)) * 64)
     rc, s, err = crawlerd("--replay", junk, "--fps", 30)
-    assert rc in (1, 2) and "crawlerd: error:" in err and "Traceback" not in err
+    assert rc == 2 and "crawlerd: error:" in err and "Traceback" not in err
 
     empty = tmp_path / "empty.h264"
     empty.write_bytes(b"")
     rc, s, err = crawlerd("--replay", empty, "--fps", 30)
-    assert rc in (1, 2) and "no decodable frames" in err or "cannot be opened" in err
+    assert rc == 2 and ("no decodable frames" in err or "cannot be opened" in err)
+
+    rc, s, err = crawlerd("--replay", tmp_path)
+    assert rc == 2 and "is a folder" in err
 
     rc, s, err = crawlerd("--replay", run["h264"], "--set", "camera.width=640", "--set", "camera.height=480")
-    assert rc == 1 and "960x720 but [camera] width/height say 640x480" in err
+    assert rc == 2 and "960x720 but [camera] width/height say 640x480" in err and err.count("\n") == 1
 
     short_pts = tmp_path / "short.pts"
     short_pts.write_text("# timecode format v2\n" + "".join(f"{i * 33.333:.3f}\n" for i in range(30)))
     rc, s, err = crawlerd("--replay", run["h264"], "--pts", short_pts)
-    assert rc == 1 and s["frames"] == 30 and "more frames than the 30 timestamps" in err
-    assert s["distance_m"] > 0.19   # what was measured up to the break is reported
+    assert rc == 2 and "has 61 frames but short.pts only 30 timestamps" in err
 
     back = tmp_path / "back.pts"
     back.write_text("0\n33\n20\n")
@@ -129,7 +131,20 @@ def test_bad_input_is_one_line_and_nonzero(render_run, crawlerd, tmp_path):
     raw = tmp_path / "copy.h264"
     raw.write_bytes(run["h264"].read_bytes())
     rc, s, err = crawlerd("--replay", raw)
-    assert rc == 1 and "--pts FILE" in err and "--fps N" in err
+    assert rc == 2 and "--pts FILE" in err and "--fps N" in err
+
+
+def test_frames_lost_inside_a_stream_are_not_passed_over_in_silence(render_run, crawlerd, tmp_path):
+    run = render_run("tilt0", tilt_deg=0, speed_m_s=0.2, **SHORT)
+    data = bytearray(run["h264"].read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 60000] = bytes(60000)          # a hole in the middle of the recording
+    holed = tmp_path / "holed.h264"
+    holed.write_bytes(data)
+    rc, s, err = crawlerd("--replay", holed, "--pts", run["pts"])
+    assert s["frames"] < run["truth"]["frames"]
+    assert "warning" in err and "speeds) after the gap are wrong" in err
+    assert any("after the gap" in w for w in s["warnings"])
 
 
 def test_truncated_stream_reports_distance_up_to_the_break(render_run, crawlerd, tmp_path):

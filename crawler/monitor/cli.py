@@ -49,7 +49,8 @@ def _zenoh_flags(p, suppress: bool):
                    help="e.g. tcp/192.168.1.10:7447, the crawler's listen endpoint (repeatable)")
     g.add_argument("--listen", action="append", default=d([]), metavar="ENDPOINT",
                    help="e.g. tcp/0.0.0.0:7447, for crawlers that connect to the laptop (repeatable)")
-    g.add_argument("--zenoh-mode", choices=ZENOH_MODES, default=d("peer"), help="zenoh mode (peer)")
+    g.add_argument("--zenoh-mode", choices=ZENOH_MODES, default=d(None),
+                   help="zenoh mode (peer, or the --zenoh-config file's)")
     g.add_argument("--zenoh-config", metavar="FILE", default=d(None),
                    help="a full zenoh JSON5 config (TLS, access control)")
     g.add_argument("--no-multicast", action="store_true", default=d(False),
