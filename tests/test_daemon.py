@@ -26,7 +26,7 @@ class Rig:
     """A daemon wired as `crawlerd --sim` wires it, with handles on every part."""
 
     def __init__(self, tmp_path, zenoh_pair, *, speed=0.3, tilt=0.0, max_frames=None, notifier=None,
-                 extra=()):
+                 extra=(), brightness=None):
         self.cfg = config.load(None, [
             f"mount.tilt_deg={tilt}", "leds.pins=[12, 13]", "leds.brightness=0.8",
             f"state.directory={json.dumps(str(tmp_path / 'state'))}",
@@ -43,7 +43,7 @@ class Rig:
         self.daemon = Daemon(self.cfg, self.source, mode="sim", leds=self.leds, link=self.link,
                              notifier=notifier, checkpoint=Checkpoint(tmp_path / "state"),
                              truth=self.world.true_distance_m, stop=self.stop.is_set,
-                             max_frames=max_frames)
+                             max_frames=max_frames, brightness=brightness)
         ref[0] = self.daemon
         self.stats = None
 
@@ -187,15 +187,18 @@ def test_sigterm_exits_cleanly_and_a_killed_daemon_resumes(tmp_path):
     from crawler.link import make_zenoh_config
 
     port = free_port()
-    dist = []
+    dist, status = [], []
     operator = zenoh.open(make_zenoh_config("peer", connect=[f"tcp/127.0.0.1:{port}"], multicast=False))
     subscribe(operator, "crawler/crawler1/distance", dist)
+    subscribe(operator, "crawler/crawler1/status", status)
     try:
         proc = start_crawlerd(tmp_path, port)
         assert wait_for(lambda: len(dist) > 30, timeout=60), proc.stderr.read() if proc.poll() else ""
+        assert wait_for(lambda: status and status[-1]["led_level"] == 0.8, timeout=10)   # mock LEDs lit
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=30)
         assert proc.returncode == 0, err
+        assert wait_for(lambda: status[-1]["led_level"] == 0.0, timeout=5)   # the goodbye status: dark
         summary = json.loads(out.strip().splitlines()[-1])
         assert summary["frames"] > 30 and summary["distance_m"] > 0.05
         saved = json.loads((tmp_path / "state" / "checkpoint.json").read_text())
@@ -258,3 +261,18 @@ def test_a_crash_in_the_loop_still_switches_the_lights_off_and_saves_the_distanc
     finally:
         rig.source.__exit__(None, None, None)
         rig.finish()          # (the loop's own finally already switched off and saved)
+
+
+def test_auto_brightness_dims_the_leds_toward_the_target(tmp_path, zenoh_pair):
+    from crawler.leds import BrightnessLoop
+
+    # the simulated wall is ~128 grey whatever the LEDs do: a target of 60 must dim them to the floor
+    rig = Rig(tmp_path, zenoh_pair, max_frames=90, brightness=BrightnessLoop(target=60.0, gain=0.002))
+    levels = []
+    rig.daemon.sinks.append(type("Watch", (), {"write": lambda self, f, e, o: levels.append(rig.leds.level),
+                                               "close": lambda self: None})())
+    rig.start()
+    rig.thread.join(30)
+    rig.finish()
+    assert levels[0] < 0.8 and levels[-1] == pytest.approx(0.05)
+    assert all(b <= a + 1e-12 for a, b in zip(levels, levels[1:]))        # monotonic dimming
