@@ -244,8 +244,9 @@ class Odometer:
     def _pixels(self, wall: np.ndarray) -> np.ndarray:
         return self.camera.to_pixels(self.projection.to_image(wall))
 
-    def _new_keyframe(self, img, t_s) -> bool:
-        img = img.copy()  # the frame buffer belongs to the camera or decoder
+    def _new_keyframe(self, img, t_s, owned: bool = False) -> bool:
+        if not owned:
+            img = img.copy()  # the frame buffer belongs to the camera or decoder
         h = img.shape[0]
         if abs(self._motion_v) > 2.0:
             # moving: look for features only on the side the wall comes in from; they stay in view
@@ -368,7 +369,7 @@ class Odometer:
             if rescue and self._good_roi is not None and kf.t_s < self._last_good_t:
                 # the keyframe is worn out (features gone, light changed): start one at the last
                 # tracked frame, whose distance is known, and measure this frame again from there
-                if self._new_keyframe(self._good_roi, self._last_good_t):
+                if self._new_keyframe(self._good_roi, self._last_good_t, owned=True):
                     return self._measure(img, t_s, rescue=False)
                 self._kf = kf
             return self._lost(img, t_s, n_tracked, n_visible)
@@ -397,7 +398,7 @@ class Odometer:
                  or abs(step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, n_in, sigma, keyframe=False)
         if renew:
-            est.keyframe = self._new_keyframe(img, t_s)
+            est.keyframe = self._new_keyframe(self._good_roi, t_s, owned=True)
         return est
 
     def _lost(self, img, t_s, n_tracked, n_visible) -> Estimate:
