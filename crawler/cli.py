@@ -229,8 +229,6 @@ def run(args, cfg) -> int:
                 leds = Leds(pins, brightness=cfg.leds["brightness"],
                             frequency_hz=cfg.leds["frequency_hz"], active_high=cfg.leds["active_high"],
                             pin_factory=pin_factory)
-            if publish:
-                link = make_link(cfg, daemon_ref).open()
             sinks = []
             if args.log:
                 sinks.append(JsonlLog(args.log))
@@ -240,11 +238,13 @@ def run(args, cfg) -> int:
             sinks.append(Progress())
             checkpoint = Checkpoint(cfg.state["directory"], cfg.state["checkpoint_s"]) if mode != "replay" else None
             brightness = BrightnessLoop(target=cfg.leds["target_grey"]) if cfg.leds["auto_brightness"] else None
-            daemon = Daemon(cfg, source, mode=mode, leds=leds, link=link, notifier=notifier,
+            daemon = Daemon(cfg, source, mode=mode, leds=leds, notifier=notifier,
                             checkpoint=checkpoint, truth=truth, brightness=brightness,
                             stop=lambda: bool(stopping), max_frames=args.max_frames, sinks=sinks,
                             realtime=args.realtime)
             daemon_ref[0] = daemon
+            if publish:     # after the daemon exists: a control query may arrive at once
+                link = daemon.link = make_link(cfg, daemon_ref).open()
             try:
                 stats = daemon.run()
             finally:
