@@ -59,16 +59,12 @@ def render(out: Path, name: str, fields: dict) -> Path:
 
 
 def replay(h264: Path, overrides: list[str]) -> dict:
-    from crawler import config
-    from crawler.daemon import Daemon
-    from crawler.leds import NoLeds
-    from crawler.video import VideoReplay
+    from crawler import settings
+    from crawler.service import Mode, RunOptions, Service
 
-    cfg = config.load(None, overrides)
-    with VideoReplay(h264) as src:
-        daemon = Daemon(cfg, src, mode="replay", leds=NoLeds())
-        daemon.run()
-    return daemon.summary()
+    with Service(settings.load(None, overrides), RunOptions(mode=Mode.REPLAY, video=str(h264))) as svc:
+        svc.run()
+        return svc.summary()
 
 
 def measure(args) -> dict:

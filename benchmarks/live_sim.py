@@ -22,12 +22,13 @@ def run(sensor: str, profile: str, speed: float, frames: int, rolling_shutter: b
     from crawler.camera import Picamera2Source
     from crawler.geometry import Mount, make_projection
     from crawler.odometry import Odometer
+    from crawler.settings import CameraSettings
     from hw_sim.picamera2_fake import ManualClock, MappedArray, SimWorld, make_picamera2
 
     clock = ManualClock()
     world = SimWorld(sensor, clock=clock.ns, sleep=clock.sleep, speed_m_s=speed, profile=profile)
-    source = Picamera2Source(make_picamera2(world), mapped_array=MappedArray, output_size=(240, 240),
-                             fps=60.0, exposure_us=1500)
+    source = Picamera2Source(CameraSettings(output_size=(240, 240), fps=60.0, exposure_us=1500),
+                             make_picamera2(world), mapped_array=MappedArray)
     with source:
         cam = source.plan.camera
         if not rolling_shutter:

@@ -13,11 +13,13 @@ python3-picamera2). The camera class is injectable, so `--sim` and tests pass hw
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
+from .calibration import load_calibration
 from .errors import BadConfig, CameraUnavailable, CrawlerError
 from .geometry import Camera
 from .ports import Frame
+from .settings import CameraSettings
 
 _log = logging.getLogger(__name__)
 
@@ -48,8 +50,7 @@ class WindowPlan:
     scaler_crop: tuple[int, int, int, int]   # ISP crop, native pixels of the active area
     output_size: tuple[int, int]
     fps: float
-    readout_s: float                 # top output row to bottom output row
-    camera: Camera                   # intrinsics of the output frames
+    camera: Camera                   # intrinsics and readout (top output row to bottom) of the output
     line_time_s: float = 0.0
     top_row_s: float = 0.0           # the window's top row is read this long after the mode's first
 
@@ -62,7 +63,7 @@ class WindowPlan:
         return {"sensor_mode": list(self.mode["size"]), "mode_fps": self.mode["fps"],
                 "mode_crop": list(self.mode["crop_limits"]), "scaler_crop": [x, y, w, h],
                 "output_size": list(self.output_size), "fps": round(self.fps, 3),
-                "readout_ms": round(self.readout_s * 1000, 4)}
+                "readout_ms": round(self.camera.readout_s * 1000, 4)}
 
 
 def default_window(modes, active_size, output_size, vflip: bool = False):
@@ -105,8 +106,6 @@ def plan_window(modes: list[dict], active_size, window, output_size, fps: float,
     more sensor pixels across the window (less binning). A mode that would have to upscale the window
     is taken only when no other covers it.
     """
-    if fps <= 0:
-        raise BadConfig(f"[camera] fps = {fps} must be > 0")
     aw, ah = active_size
     if window is None:
         window = default_window(modes, active_size, output_size, vflip)
@@ -168,7 +167,7 @@ def plan_for_mode(mode, window, active_size, output_size, fps, lens, line_time_s
     cam = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy, cam.distortion, hflip=hflip,
                  vflip=vflip, readout_s=readout)
     return WindowPlan(mode=mode, scaler_crop=(x, y, w, h), output_size=(ow, oh), fps=fps,
-                      readout_s=readout, camera=cam, line_time_s=line_time_s,
+                      camera=cam, line_time_s=line_time_s,
                       top_row_s=(y - mode["crop_limits"][1]) * rows_per_native * line_time_s)
 
 
@@ -182,33 +181,39 @@ def import_picamera2():
 
 
 class Picamera2Source:
-    """Frames from a (real or fake) Picamera2 on a planned window; `frames()` yields Y-plane views."""
+    """Frames from a (real or fake) Picamera2 on a planned window; `frames()` yields Y-plane views.
 
-    def __init__(self, camera_class=None, *, mapped_array=None, camera_num: int = 0, window=None, output_size=(240, 240),
-                 fps: float = 60.0, exposure_us: int = 2000, analogue_gain: float = 4.0,
-                 fov_deg=None, calibration: Camera | None = None, line_time_us: float | None = None,
-                 hflip: bool = False,
-                 vflip: bool = False, capture_timeout_s: float = 2.0, description: str = "camera"):
+    A FrameSource: after entering, `camera` is the exact camera of the frames (from the window plan)
+    and `default_roi` the whole output frame (the window already is the region to measure).
+    """
+
+    def __init__(self, settings: CameraSettings, camera_class=None, *, mapped_array=None,
+                 kind: str = "camera"):
+        self.settings = settings
         self.camera_class = camera_class
         self.mapped_array = mapped_array    # picamera2.MappedArray: frames without a copy
-        self.camera_num = camera_num
-        self.window = window
-        self.output_size = tuple(output_size)
-        self.fps = fps
-        self.exposure_us = int(exposure_us)
-        self.analogue_gain = float(analogue_gain)
-        self.fov_deg = fov_deg
-        self.calibration = calibration      # full active array intrinsics, instead of the FOV
-        self.line_time_s = None if line_time_us is None else line_time_us / 1e6
-        self.hflip, self.vflip = hflip, vflip
-        self.capture_timeout_s = capture_timeout_s
-        self.description = description
+        self.kind = kind
+        self.description = kind
+        self.output_size = tuple(settings.output_size)
+        # full active array intrinsics from a calibration file, else the lens FOV (from the model)
+        self.calibration = load_calibration(settings.calibration) if settings.calibration else None
         self.plan: WindowPlan | None = None
         self.model = None
         self.cam = None
-        self.frames_read = 0
         self.first_sensor_ns = self.last_sensor_ns = None
         self.warnings: list[str] = []
+
+    @property
+    def camera(self) -> Camera:
+        return self.plan.camera
+
+    @property
+    def default_roi(self) -> tuple[int, int, int, int]:
+        return (0, 0, self.plan.camera.width, self.plan.camera.height)
+
+    def info(self) -> dict:
+        """The sensor plan, for the status."""
+        return self.plan.describe() if self.plan else {}
 
     def __enter__(self):
         if self.camera_class is None:
@@ -221,13 +226,13 @@ class Picamera2Source:
         if not info:
             raise CameraUnavailable("no CSI camera found; check the ribbon cable and that the camera is "
                                     "enabled (rpicam-hello --list-cameras), or run with --sim / --replay FILE")
-        if self.camera_num >= len(info):
-            raise CameraUnavailable(f"[camera] camera_num = {self.camera_num} but only {len(info)} "
+        if self.settings.camera_num >= len(info):
+            raise CameraUnavailable(f"[camera] camera_num = {self.settings.camera_num} but only {len(info)} "
                                     "camera(s) found")
         try:
-            self.cam = cls(self.camera_num)
+            self.cam = cls(self.settings.camera_num)
         except (RuntimeError, IndexError, OSError) as exc:
-            raise CameraUnavailable(f"camera {self.camera_num} cannot be opened ({exc}); is another "
+            raise CameraUnavailable(f"camera {self.settings.camera_num} cannot be opened ({exc}); is another "
                                     "process (rpicam-vid, a second crawlerd) using it?") from None
         try:
             self._configure()
@@ -242,7 +247,8 @@ class Picamera2Source:
         self.model = str(props.get("Model", "unknown"))
         active = props.get("PixelArrayActiveAreas") or [(0, 0) + tuple(props["PixelArraySize"])]
         active_size = tuple(active[0][2:])
-        fov = self.fov_deg or SENSOR_FOV_DEG.get(self.model)
+        c = self.settings
+        fov = (c.sensor_hfov_deg, c.sensor_vfov_deg) if c.sensor_hfov_deg else SENSOR_FOV_DEG.get(self.model)
         if self.calibration is not None:
             if (self.calibration.width, self.calibration.height) != tuple(active_size):
                 raise BadConfig(
@@ -254,16 +260,15 @@ class Picamera2Source:
             raise BadConfig(f"camera model {self.model!r} has no known field of view; set [camera] "
                             "sensor_hfov_deg and sensor_vfov_deg (or a calibration file)")
         modes = cam.sensor_modes            # reconfigures the camera: read before configure()
-        window = self.window
         base_model = self.model.split("_")[0]
         self._active_size, self._fov = active_size, fov
-        self.plan = plan_window(modes, active_size, window, self.output_size, self.fps, fov,
-                                SENSOR_VBLANK_MIN.get(base_model, 0), self.line_time_s,
-                                self.hflip, self.vflip)
+        self.plan = self._with_readout(plan_window(
+            modes, active_size, c.sensor_window, self.output_size, c.fps, fov,
+            SENSOR_VBLANK_MIN.get(base_model, 0), hflip=c.hflip, vflip=c.vflip))
         p = self.plan
         d = p.frame_duration_us
-        controls = {"FrameDurationLimits": (d, d), "ExposureTime": self.exposure_us,
-                    "AnalogueGain": self.analogue_gain, "ScalerCrop": p.scaler_crop}
+        controls = {"FrameDurationLimits": (d, d), "ExposureTime": c.exposure_us,
+                    "AnalogueGain": c.analogue_gain, "ScalerCrop": p.scaler_crop}
         kw = dict(raw=None, sensor={"output_size": tuple(p.mode["size"]), "bit_depth": p.mode["bit_depth"]},
                   controls=controls, buffer_count=4)
         main = {"size": p.output_size, "format": "YUV420"}
@@ -291,23 +296,29 @@ class Picamera2Source:
             p = self.plan
             _log.warning("camera applied ScalerCrop %s instead of %s; intrinsics follow the camera",
                          list(actual), list(p.scaler_crop))
-            self.plan = plan_for_mode(p.mode, actual, self._active_size, p.output_size, p.fps,
-                                      self._fov, p.line_time_s, self.hflip, self.vflip)
+            self.plan = self._with_readout(plan_for_mode(
+                p.mode, actual, self._active_size, p.output_size, p.fps, self._fov, p.line_time_s,
+                self.settings.hflip, self.settings.vflip))
+
+    def _with_readout(self, plan: WindowPlan) -> WindowPlan:
+        """[camera] readout_ms, when set, overrides the readout computed from the sensor mode."""
+        given = self.settings.readout_s
+        if given is None or abs(given - plan.camera.readout_s) < 1e-9:
+            return plan
+        _log.warning("[camera] readout_ms = %g overrides the %.3f ms the sensor mode gives; remove the "
+                     "key to use the computed one", given * 1000, plan.camera.readout_s * 1000)
+        return replace(plan, camera=replace(plan.camera, readout_s=given))
 
     def _capture(self):
         try:
-            return self.cam.capture_request(wait=self.capture_timeout_s)
+            return self.cam.capture_request(wait=self.settings.capture_timeout_s)
         except TimeoutError:
             # the timed-out job would later hold a buffer nobody releases (picamera2 keeps it queued)
             try:
                 self.cam.cancel_all_and_flush()
             except Exception:
                 _log.debug("cancel_all_and_flush failed", exc_info=True)
-            raise CameraStalled(f"camera delivered no frame for {self.capture_timeout_s:g} s") from None
-
-    def set_controls(self, controls: dict):
-        if self.cam is not None:
-            self.cam.set_controls(controls)
+            raise CameraStalled(f"camera delivered no frame for {self.settings.capture_timeout_s:g} s") from None
 
     def frames(self):
         """Y-plane views, valid until the next frame: with a MappedArray class they are the camera's
@@ -324,7 +335,7 @@ class Picamera2Source:
                     raise CrawlerError("camera metadata carries no SensorTimestamp")
                 # SensorTimestamp marks the start of readout; the frame's time is the middle of its
                 # top row's exposure (docs/conventions.md)
-                t_ns = ts + self.plan.top_row_s * 1e9 - md.get("ExposureTime", self.exposure_us) * 500.0
+                t_ns = ts + self.plan.top_row_s * 1e9 - md.get("ExposureTime", self.settings.exposure_us) * 500.0
                 if t0 is None:
                     t0 = t_ns
                     self.first_sensor_ns = ts
@@ -337,7 +348,6 @@ class Picamera2Source:
             finally:
                 request.release()
             n += 1
-            self.frames_read = n
 
     def _close(self):
         cam, self.cam = self.cam, None

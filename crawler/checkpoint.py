@@ -10,45 +10,35 @@ import json
 import logging
 import os
 import time
-import uuid
 from pathlib import Path
+
+from .ports import Output
 
 _log = logging.getLogger(__name__)
 
 
 class Checkpoint:
-    def __init__(self, directory: str | Path, every_s: float = 1.0, clock=time.monotonic):
+    """The state file in the state directory: load once at start, save as the run goes."""
+
+    def __init__(self, directory: str | Path):
         self.path = Path(directory) / "checkpoint.json"
-        self.every_s = every_s
-        self.clock = clock
-        self._last = None
-        self.run_id = uuid.uuid4().hex[:12]
 
     def load(self) -> dict | None:
-        """The saved run, or None if there is none (or it is unreadable: logged, then ignored)."""
+        """The saved run ({distance_m, run_id, ...}), or None if there is none (or it is unreadable:
+        logged, then ignored)."""
         try:
             data = json.loads(self.path.read_text())
-            distance = float(data["distance_m"])
-            self.run_id = str(data["run_id"])
+            data["distance_m"] = float(data["distance_m"])
+            data["run_id"] = str(data["run_id"])
         except FileNotFoundError:
             return None
         except (OSError, ValueError, KeyError, TypeError) as exc:
             _log.warning("checkpoint %s unreadable (%s); starting a new run from 0 m", self.path, exc)
             return None
-        data["distance_m"] = distance
         return data
 
-    def new_run(self):
-        self.run_id = uuid.uuid4().hex[:12]
-
-    def maybe_save(self, state: dict):
-        now = self.clock()
-        if self._last is None or now - self._last >= self.every_s:
-            self.save(state)
-
     def save(self, state: dict):
-        self._last = self.clock()
-        data = dict(state, run_id=self.run_id, saved_unix_s=round(time.time(), 3))
+        data = dict(state, saved_unix_s=round(time.time(), 3))
         tmp = self.path.with_suffix(".tmp")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -59,3 +49,27 @@ class Checkpoint:
             os.replace(tmp, self.path)
         except OSError as exc:
             _log.warning("cannot write checkpoint %s: %s", self.path, exc)
+
+
+class CheckpointOutput(Output):
+    """Saves the run's state every `every_s`, at once on a reset, and when measurement stops."""
+
+    def __init__(self, store: Checkpoint, every_s: float = 1.0, clock=time.monotonic):
+        self.store = store
+        self.every_s = every_s
+        self.clock = clock
+        self._last: float | None = None
+
+    def _save(self, run):
+        self._last = self.clock()
+        self.store.save(run.state())
+
+    def write(self, frame, estimate, run):
+        if self._last is None or self.clock() - self._last >= self.every_s:
+            self._save(run)
+
+    def reset(self, run):
+        self._save(run)
+
+    def stop(self, run):
+        self._save(run)

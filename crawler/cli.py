@@ -18,18 +18,50 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import os
-import signal
 import sys
-import tempfile
 from pathlib import Path
 
 from . import __version__
-from .errors import BadConfig, CameraUnavailable, CrawlerError, fail
+from .errors import CrawlerError, fail
+from .zenoh_flags import add_zenoh_flags, zenoh_values
 
 PROG = "crawlerd"
 DEFAULT_CONFIG = "/etc/crawler/crawlerd.toml"
 _log = logging.getLogger(PROG)
+
+# flag -> the settings key it sets (the flag's value, typed by argparse)
+FLAG_KEYS = {"method": "odometry.method", "tilt": "mount.tilt_deg", "state_dir": "state.directory"}
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a whole number >= 1")
+    return value
+
+
+def _frame_rate(text: str) -> float:
+    """A recording's frame rate: what cameras deliver, not 0, not a typo of a thousand."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0.1 <= value <= 1000:
+        raise argparse.ArgumentTypeError(f"{text!r} must be a frame rate between 0.1 and 1000 fps")
+    return value
+
+
+def _intervals(text: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must be A:B in metres, e.g. 0.5:0.8") from None
+    return (a, b)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -51,7 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     cfg.add_argument("--state-dir", metavar="DIR", help="= --set state.directory=DIR (checkpoint)")
     rep = p.add_argument_group("replay")
     rep.add_argument("--pts", metavar="FILE", help="frame times: rpicam-vid --save-pts or picamera2 pts file")
-    rep.add_argument("--fps", type=float, metavar="N", help="frame times for a raw stream without a pts file")
+    rep.add_argument("--fps", type=_frame_rate, metavar="N", help="frame times for a raw stream without a pts file")
     rep.add_argument("--realtime", action="store_true", help="pace frames to their timestamps")
     rep.add_argument("--publish", action="store_true", help="publish the replay over Zenoh like the daemon")
     sim = p.add_argument_group("simulator (--sim)")
@@ -63,16 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--sim-sensor", default="imx219", choices=("imx219", "ov5647", "imx708"),
                      help="simulated camera module (imx219)")
     sim.add_argument("--sim-seed", type=int, default=0, metavar="N", help="wall texture seed")
-    sim.add_argument("--sim-featureless", action="append", default=[], metavar="A:B",
+    sim.add_argument("--sim-featureless", action="append", default=[], type=_intervals, metavar="A:B",
                      help="a smooth, wet stretch of wall from A to B metres (repeatable)")
-    net = p.add_argument_group("zenoh")
-    net.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                     help="e.g. tcp/0.0.0.0:7447 (repeatable; = [zenoh] listen)")
-    net.add_argument("--connect", action="append", default=[], metavar="ENDPOINT",
-                     help="e.g. tcp/192.168.1.10:7447 (repeatable; = [zenoh] connect)")
-    net.add_argument("--zenoh-mode", choices=("peer", "client", "router"), help="= [zenoh] mode (peer)")
-    net.add_argument("--zenoh-config", metavar="FILE", help="a full zenoh JSON5 config (TLS, access control)")
-    net.add_argument("--no-multicast", action="store_true", help="no multicast scouting (fixed endpoints only)")
+    net = add_zenoh_flags(p)
     net.add_argument("--no-publish", action="store_true", help="measure without opening a Zenoh session")
     out = p.add_argument_group("output")
     out.add_argument("--log", metavar="FILE.jsonl", help="one JSON object per processed frame")
@@ -82,222 +107,53 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"{text!r} must be a whole number >= 1")
-    return value
+def load_settings(args):
+    """The settings: defaults, the config file, --set items, then the flags' typed values."""
+    from . import settings as S
+    from .service import sim_settings
 
-
-def load_config(args):
-    from . import config
-
-    overrides = list(args.set)
-    if args.method:
-        overrides.append(f"odometry.method={args.method}")
-    tilt = args.tilt if args.tilt is not None else (args.sim_tilt if args.sim else None)
-    if tilt is not None:
-        overrides.append(f"mount.tilt_deg={tilt}")
-    for flag, key in (("state_dir", "state.directory"), ("zenoh_mode", "zenoh.mode"),
-                      ("listen", "zenoh.listen"), ("connect", "zenoh.connect"),
-                      ("zenoh_config", "zenoh.config")):
-        if getattr(args, flag):
-            overrides.append(f"{key}={json.dumps(getattr(args, flag))}")
-    if args.no_multicast:
-        overrides.append("zenoh.multicast=false")
-    if args.sim and not args.state_dir and not any(o.startswith("state.directory=") for o in args.set):
-        # a simulated run must never overwrite the real run's checkpoint on the crawler
-        overrides.append(f"state.directory={json.dumps(str(Path(tempfile.gettempdir()) / 'crawlerd-sim'))}")
+    values = {key: getattr(args, flag) for flag, key in FLAG_KEYS.items() if getattr(args, flag) is not None}
+    values.update(zenoh_values(args))
     path = args.config or os.environ.get("CRAWLERD_CONFIG")
     if path is None and Path(DEFAULT_CONFIG).is_file():
         path = DEFAULT_CONFIG
-    return config.load(path, overrides)
+    settings = S.load(path, args.set, values)
+    if args.sim:
+        given = args.state_dir is not None or any(s.startswith("state.directory=") for s in args.set)
+        settings = sim_settings(settings, run_options(args), given)
+    return settings
 
 
-def make_replay_source(cfg, video, pts=None, fps=None):
-    from .video import VideoReplay
+def run_options(args):
+    from .service import Mode, RunOptions
+    from .sim import SimOptions
 
-    return VideoReplay(video, pts=pts, fps=fps, expect_size=(cfg.camera["width"], cfg.camera["height"]))
-
-
-def make_camera_source(cfg, camera_class=None, description="camera", mapped_array=None):
-    from .camera import Picamera2Source
-
-    c = cfg.camera
-    fov = (c["sensor_hfov_deg"], c["sensor_vfov_deg"]) if c["sensor_hfov_deg"] else None
-    calibration = None
-    if c["calibration"]:
-        from .geometry import Camera
-
-        calibration = Camera.from_calibration(c["calibration"])
-    return Picamera2Source(camera_class, mapped_array=mapped_array, camera_num=c["camera_num"],
-                           window=c["sensor_window"],
-                           calibration=calibration,
-                           output_size=tuple(c["output_size"]), fps=c["fps"], exposure_us=c["exposure_us"],
-                           analogue_gain=c["analogue_gain"], fov_deg=fov, line_time_us=c["line_time_us"],
-                           hflip=c["hflip"], vflip=c["vflip"], capture_timeout_s=c["capture_timeout_s"],
-                           description=description)
+    mode = Mode.REPLAY if args.replay else Mode.SIM if args.sim else Mode.CAMERA
+    sim = SimOptions(speed_m_s=args.sim_speed, tilt_deg=args.sim_tilt, profile=args.sim_profile,
+                     sensor=args.sim_sensor, seed=args.sim_seed, featureless=tuple(args.sim_featureless))
+    publish = False if args.no_publish else (True if args.publish else None)
+    return RunOptions(mode=mode, video=args.replay, pts=args.pts, fps=args.fps, realtime=args.realtime,
+                      publish=publish, log=args.log, annotate=args.annotate, max_frames=args.max_frames,
+                      sim=sim)
 
 
-def make_sim(cfg, args):
-    """hw_sim's fake Picamera2 class bound to a simulated run, and its ground truth."""
-    from hw_sim.picamera2_fake import SimWorld, make_picamera2
+def run(settings, options, hardware=None) -> int:
+    """Build, run and report one run; the exit code. Signals stop it cleanly, even during start-up."""
+    from .service import Service
+    from .signals import StopSignals
 
-    try:
-        featureless = tuple(tuple(float(v) for v in item.split(":")) for item in args.sim_featureless)
-        if not all(len(f) == 2 and f[0] < f[1] for f in featureless):
-            raise ValueError
-    except ValueError:
-        raise BadConfig(f"--sim-featureless {args.sim_featureless} must be A:B with A < B in metres, "
-                        "e.g. 0.5:0.8") from None
-    from hw_sim import SimError
-
-    try:
-        world = _sim_world(SimWorld, cfg, args, featureless)
-    except (SimError, ValueError) as exc:
-        flags = {"speed_m_s": "--sim-speed", "tilt_deg": "--sim-tilt (or mount.tilt_deg)"}
-        field = getattr(exc, "field", "")
-        raise BadConfig(f"simulator: {exc}" + (f"; set {flags[field]}" if field in flags else "")) from None
-    return make_picamera2(world), world
-
-
-def _sim_world(SimWorld, cfg, args, featureless):
-    return SimWorld(sensor=args.sim_sensor, tilt_deg=cfg.mount["tilt_deg"], speed_m_s=args.sim_speed,
-                    profile=args.sim_profile, seed=args.sim_seed, featureless=featureless,
-                    pipe_diameter_m=cfg.mount["pipe_diameter_m"], car_width_m=cfg.mount["car_width_m"],
-                    offset_m=cfg.mount["camera_offset_m"], camera_height_m=cfg.mount["height_m"])
-
-
-def make_link(cfg, daemon_ref):
-    from .link import ZenohLink, make_zenoh_config
-
-    z = cfg.zenoh
-    conf = make_zenoh_config(z["mode"], z["listen"], z["connect"], z["config"], z["multicast"])
-    return ZenohLink(cfg.name, conf, on_command=lambda req: daemon_ref[0].commands.submit(req))
-
-
-def run(args, cfg) -> int:
-    from .checkpoint import Checkpoint
-    from .daemon import Daemon
-    from .leds import BrightnessLoop, Leds, NoLeds
-    from .sdnotify import Notifier
-    from .sinks import Annotator, JsonlLog, Progress
-
-    mode = "replay" if args.replay else "sim" if args.sim else "camera"
-    truth = None
-    pin_factory = None
-    if mode == "replay":
-        source = make_replay_source(cfg, args.replay, args.pts, args.fps)
-    elif mode == "sim":
-        from gpiozero.pins.mock import MockFactory, MockPWMPin
-
-        from hw_sim.picamera2_fake import MappedArray
-
-        camera_class, world = make_sim(cfg, args)
-        truth = world.true_distance_m
-        pin_factory = MockFactory(pin_class=MockPWMPin)
-        source = make_camera_source(cfg, camera_class, description="sim", mapped_array=MappedArray)
-    else:
-        source = make_camera_source(cfg)
-
-    stopping = []
-    old = {s: signal.signal(s, lambda signum, _f: stopping.append(signum))
-           for s in (signal.SIGINT, signal.SIGTERM)}
-    publish = (mode != "replay" or args.publish) and not args.no_publish
-    daemon_ref = [None]
-    link = None
-    leds = NoLeds()
-    notifier = Notifier() if mode != "replay" else None
-    try:
-        try:
-            source.__enter__()
-        except CameraUnavailable as exc:
-            fallback = cfg.camera["fallback_video"]
-            if mode != "camera" or not fallback:
-                raise
-            _log.error("CAMERA UNAVAILABLE (%s); FALLING BACK TO RECORDING %s", exc, fallback)
-            mode = "replay-fallback"
-            source = make_replay_source(cfg, fallback, cfg.camera["fallback_pts"], cfg.camera["fallback_fps"])
-            source.__enter__()
-            source.description = f"FALLBACK {source.description} (camera: {exc})"
-        try:
-            pins = cfg.leds["pins"] or ([12, 13] if mode == "sim" else [])   # sim: mock pins anyway
-            if pins and not mode.startswith("replay"):
-                leds = Leds(pins, brightness=cfg.leds["brightness"],
-                            frequency_hz=cfg.leds["frequency_hz"], active_high=cfg.leds["active_high"],
-                            pin_factory=pin_factory)
-            sinks = []
-            if args.log:
-                sinks.append(JsonlLog(args.log))
-            if args.annotate:
-                sinks.append(Annotator(args.annotate, fps=args.fps or (
-                    30.0 if mode.startswith("replay") else cfg.camera["fps"])))
-            sinks.append(Progress())
-            checkpoint = Checkpoint(cfg.state["directory"], cfg.state["checkpoint_s"]) if mode != "replay" else None
-            brightness = BrightnessLoop(target=cfg.leds["target_grey"]) if cfg.leds["auto_brightness"] else None
-            daemon = Daemon(cfg, source, mode=mode, leds=leds, notifier=notifier,
-                            checkpoint=checkpoint, truth=truth, brightness=brightness,
-                            stop=lambda: bool(stopping), max_frames=args.max_frames, sinks=sinks,
-                            realtime=args.realtime)
-            daemon_ref[0] = daemon
-            if publish:     # after the daemon exists: a control query may arrive at once
-                link = daemon.link = make_link(cfg, daemon_ref).open()
-            try:
-                stats = daemon.run()
-            finally:
-                for sink in sinks:
-                    sink.close()
-        finally:
-            source.__exit__(None, None, None)
-    finally:
-        leds.close()
-        if link is not None:
-            link.close()
-        if notifier is not None:
-            notifier.close()
-        for s, h in old.items():
-            signal.signal(s, h)
-
-    stats.extra.update(source=source.description, method=cfg.odometry["method"])
-    warnings = list(getattr(source, "warnings", []))
-    if warnings:
-        stats.extra["warnings"] = warnings
-    if daemon.true_distance_m() is not None:
-        stats.extra["sim_true_distance_m"] = round(daemon.true_distance_m(), 6)
+    with StopSignals() as stop:
+        with Service(settings, options, hardware, stop=lambda: bool(stop)) as svc:
+            stats = svc.run()
+            summary = svc.summary()
     if stats.frames == 0 and not stats.error:
-        stats.error = "no frames were processed"
-    print(json.dumps(daemon.summary()), flush=True)
+        stats.error = summary["error"] = "no frames were processed"
+    print(json.dumps(summary), flush=True)
     if stats.error:
         print(f"{PROG}: error: {stats.error}", file=sys.stderr)
         return 2 if stats.frames == 0 else 1    # nothing measured: the input was bad
-    for w in warnings:
+    for w in summary.get("warnings", []):
         print(f"{PROG}: warning: {w}", file=sys.stderr)
-    return 0
-
-
-def check_config(args, cfg) -> int:
-    """Validate, then print the derived geometry: of the recording frames, and of the live window
-    (from the simulated camera with --sim, from the real one when it can be opened)."""
-    out = cfg.summary()
-    if not args.replay:
-        if args.sim:
-            camera_class, _ = make_sim(cfg, args)
-            source = make_camera_source(cfg, camera_class, description="sim")
-        else:
-            source = make_camera_source(cfg)
-        try:
-            with source:
-                plan = source.plan
-                cam = plan.camera
-                out["live"] = dict(plan.describe(), model=source.model,
-                                   intrinsics={k: round(getattr(cam, k), 3) for k in ("fx", "fy", "cx", "cy")},
-                                   m_per_px_centre=round(cfg.make_mount().height_m / cam.fy, 9))
-        except CameraUnavailable as exc:
-            out["live"] = f"camera unavailable: {exc}"
-    print(json.dumps(out, indent=2))
     return 0
 
 
@@ -306,18 +162,18 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format=f"{PROG}: %(levelname)s: %(message)s")
     try:
-        cfg = load_config(args)
+        settings = load_settings(args)
+        options = run_options(args)
         if args.check_config:
-            return check_config(args, cfg)
-        return run(args, cfg)
+            from .service import check_config
+
+            print(json.dumps(check_config(settings, options), indent=2))
+            return 0
+        return run(settings, options)
     except CrawlerError as exc:
-        return _fail(exc, 2)
+        return fail(PROG, exc, 2)
     except KeyboardInterrupt:
         return 130
-
-
-def _fail(exc, code: int) -> int:
-    return fail(PROG, exc, code)
 
 
 if __name__ == "__main__":

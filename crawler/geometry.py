@@ -7,10 +7,8 @@ the crown (positive toward image right) and axial ``y`` ahead of the camera, bot
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -60,45 +58,9 @@ class Camera:
     @classmethod
     def from_fov(cls, width: int, height: int, vfov_deg: float, hfov_deg: float, **kw) -> "Camera":
         """The thesis way: focal lengths from the field of view, principal point at the centre."""
-        for name, fov in (("vfov_deg", vfov_deg), ("hfov_deg", hfov_deg)):
-            if not 0 < fov < 170:
-                raise BadConfig(f"[camera] {name} = {fov} must be between 0 and 170 degrees")
         fx = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
         fy = (height / 2.0) / math.tan(math.radians(vfov_deg) / 2.0)
         return cls(width, height, fx, fy, (width - 1) / 2.0, (height - 1) / 2.0, **kw)
-
-    @classmethod
-    def from_calibration(cls, path: str | Path, **kw) -> "Camera":
-        """OpenCV intrinsics from JSON (camera_matrix, dist_coeffs, image_size) or a FileStorage YAML/XML."""
-        path = Path(path)
-        if not path.is_file():
-            raise BadConfig(f"[camera] calibration = {str(path)!r}: no such file")
-        try:
-            if path.suffix.lower() == ".json":
-                data = json.loads(path.read_text())
-                k = np.asarray(data["camera_matrix"], dtype=float).reshape(3, 3)
-                dist = np.asarray(data.get("dist_coeffs", []), dtype=float).ravel()
-                w, h = (int(v) for v in data["image_size"])
-            else:
-                fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-                k = fs.getNode("camera_matrix").mat()
-                d = fs.getNode("distortion_coefficients").mat()
-                dist = np.zeros(0) if d is None else d.ravel()
-                w = int(fs.getNode("image_width").real())
-                h = int(fs.getNode("image_height").real())
-                if k is None or w <= 0 or h <= 0:
-                    raise KeyError("camera_matrix/image_width/image_height")
-        except (KeyError, ValueError, TypeError, cv2.error, SystemError, UnicodeDecodeError) as exc:
-            raise BadConfig(
-                f"[camera] calibration = {str(path)!r} is not an OpenCV calibration ({exc}); expected "
-                'JSON {"camera_matrix": [[fx,0,cx],[0,fy,cy],[0,0,1]], "dist_coeffs": [...], '
-                '"image_size": [w, h]} or a calibrateCamera YAML') from None
-        fx, fy, cx, cy = float(k[0, 0]), float(k[1, 1]), float(k[0, 2]), float(k[1, 2])
-        if not (w > 0 and h > 0 and fx > 0 and fy > 0 and np.isfinite([fx, fy, cx, cy]).all()
-                and np.isfinite(dist).all()):
-            raise BadConfig(f"[camera] calibration = {str(path)!r} holds impossible intrinsics "
-                            f"(fx={fx}, fy={fy}, cx={cx}, cy={cy}, image_size={w}x{h}); recalibrate")
-        return cls(w, h, fx, fy, cx, cy, distortion=tuple(float(x) for x in dist), **kw)
 
     def window(self, x0: float, y0: float, w: float, h: float, out_w: int, out_h: int) -> "Camera":
         """The camera seen through a sensor sub-rectangle scaled to out_w x out_h (pixel centres kept)."""
@@ -309,10 +271,8 @@ class CylinderProjection(Projection):
 
 
 def make_projection(method: str, mount: Mount) -> Projection:
-    classes = {"pixel": PixelProjection, "plane": PlaneProjection, "cylinder": CylinderProjection}
-    if method not in classes:
-        raise BadConfig(f"[odometry] method = {method!r} is not one of {', '.join(METHODS)}")
-    return classes[method](mount)
+    """The projection named by [odometry] method (validated in settings.py)."""
+    return {"pixel": PixelProjection, "plane": PlaneProjection, "cylinder": CylinderProjection}[method](mount)
 
 
 def _pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:

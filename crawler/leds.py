@@ -10,7 +10,10 @@ import logging
 import threading
 from dataclasses import dataclass
 
-from .errors import BadConfig, CrawlerError
+import numpy as np
+
+from .errors import CrawlerError
+from .ports import Output
 
 _log = logging.getLogger(__name__)
 
@@ -23,8 +26,6 @@ class Leds:
         from gpiozero import PWMLED
         from gpiozero.exc import GPIOZeroError
 
-        if not 0.0 <= brightness <= 1.0:
-            raise BadConfig(f"[leds] brightness = {brightness} must be between 0 and 1")
         self.brightness = float(brightness)
         self._lock = threading.Lock()
         self._leds = []
@@ -38,6 +39,12 @@ class Leds:
                 f"LED pin {pin!r} cannot be driven: {exc}; check [leds] pins, that the user is in the "
                 "'gpio' group, and that the pins support PWM (use --sim off the Pi)") from None
         self.level = 0.0
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
     def on(self, level: float | None = None):
         """Light at `level` (default: the configured brightness)."""
@@ -72,6 +79,12 @@ class NoLeds:
     brightness = 0.0
     level = 0.0
 
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        pass
+
     def on(self, level=None):
         pass
 
@@ -101,3 +114,15 @@ class BrightnessLoop:
     def update(self, level: float, mean_grey: float) -> float:
         new = level + self.gain * (self.target - mean_grey)
         return min(self.max_level, max(self.min_level, new))
+
+
+class AutoBrightness(Output):
+    """Each frame, nudge the LEDs toward the target mean grey of the region being measured."""
+
+    def __init__(self, leds, roi, loop: BrightnessLoop):
+        self.leds, self.roi, self.loop = leds, roi, loop
+
+    def write(self, frame, estimate, run):
+        x, y, w, h = self.roi
+        mean = float(np.mean(frame.gray[y:y + h:4, x:x + w:4]))     # every 4th pixel is plenty
+        self.leds.set(self.loop.update(self.leds.level, mean))

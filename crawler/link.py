@@ -16,21 +16,40 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import threading
+import time
 from concurrent.futures import Future, TimeoutError as FutureTimeout
 from pathlib import Path
 
 from .errors import BadConfig
+from .ports import Output
 
 _log = logging.getLogger(__name__)
 
-ZENOH_MODES = ("peer", "client", "router")
+from .zenoh_flags import ZENOH_MODES  # noqa: F401  (one list of modes)
+
+
+def zenoh_message(exc) -> str:
+    """zenoh's error text without the Rust source locations it appends."""
+    return re.sub(r" at /\S+?:\d+\.?", "", str(exc)).strip()
+
+
+def _check_ports(kind: str, endpoints) -> None:
+    """zenoh parses endpoints but accepts any port for `connect` (it just never connects): refuse it."""
+    for e in endpoints:
+        m = re.match(r"^(tcp|udp|tls|quic|ws)/.*:(\d+)(?:[?#].*)?$", str(e))
+        if m and not 0 < int(m.group(2)) < 65536:
+            raise BadConfig(f"[zenoh] {kind} endpoint {e!r}: port {m.group(2)} must be 1..65535")
 
 
 def make_zenoh_config(mode: str | None = "peer", listen=(), connect=(), config_file: str | None = None,
                       multicast: bool = True):
     """One place that turns flags/TOML into a zenoh.Config, naming the culprit when it fails."""
     import zenoh
+
+    _check_ports("listen", listen)
+    _check_ports("connect", connect)
 
     if config_file:
         path = Path(config_file)
@@ -39,13 +58,12 @@ def make_zenoh_config(mode: str | None = "peer", listen=(), connect=(), config_f
         try:
             conf = zenoh.Config.from_file(str(path))
         except Exception as exc:   # zenoh raises its own ZError
-            raise BadConfig(f"[zenoh] config = {config_file!r} is not a valid zenoh config: {exc}") from None
+            raise BadConfig(f"[zenoh] config = {config_file!r} is not a valid zenoh config: "
+                            f"{zenoh_message(exc)}") from None
     else:
         conf = zenoh.Config()
     if mode is None and not config_file:
         mode = "peer"
-    if mode is not None and mode not in ZENOH_MODES:
-        raise BadConfig(f"--zenoh-mode {mode!r} must be one of {', '.join(ZENOH_MODES)}")
     try:
         if mode is not None:     # else the config file's own mode stands
             conf.insert_json5("mode", json.dumps(mode))
@@ -56,8 +74,8 @@ def make_zenoh_config(mode: str | None = "peer", listen=(), connect=(), config_f
         if not multicast:
             conf.insert_json5("scouting/multicast/enabled", "false")
     except Exception as exc:
-        raise BadConfig(f"zenoh endpoints listen={list(listen)} connect={list(connect)} rejected: {exc}; "
-                        "an endpoint looks like tcp/192.168.1.10:7447") from None
+        raise BadConfig(f"zenoh endpoints listen={list(listen)} connect={list(connect)} rejected: "
+                        f"{zenoh_message(exc)}; an endpoint looks like tcp/192.168.1.10:7447") from None
     return conf
 
 
@@ -221,3 +239,38 @@ class CommandQueue:
                 fut.set_result(handle(request))
             except Exception as exc:
                 fut.set_exception(exc)
+
+
+class ZenohOutput(Output):
+    """The link as the loop's output: estimates at most `publish_hz`, the status at `status_hz` and
+    once more when measurement stops (so the operator sees the lights go out)."""
+
+    def __init__(self, link: ZenohLink, publish_hz: float = 30.0, status_hz: float = 1.0,
+                 clock=time.monotonic):
+        self.link = link
+        self.publish_every_s, self.status_every_s = 1.0 / publish_hz, 1.0 / status_hz
+        self.clock = clock
+        self._last_pub = self._last_status = -float("inf")
+
+    def __enter__(self):
+        self.link.open()
+        return self
+
+    def write(self, frame, estimate, run):
+        now = self.clock()
+        if now - self._last_pub >= self.publish_every_s:
+            self._last_pub = now
+            self.link.publish_estimate(dict(estimate.as_dict(), name=run.name))
+        if now - self._last_status >= self.status_every_s:
+            self._last_status = now
+            self.link.publish_status(run.status())
+
+    def report(self, status):
+        if status.get("last_error") is None:
+            status["last_error"] = self.link.last_error
+
+    def stop(self, run):
+        self.link.publish_status(run.status())
+
+    def close(self):
+        self.link.close()

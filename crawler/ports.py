@@ -1,4 +1,9 @@
-"""The small interfaces between the odometry loop and the world. Hardware lives behind these."""
+"""The small interfaces between the measuring loop and the world. Hardware lives behind these.
+
+The loop (crawler/daemon.py) sees a FrameSource, the LEDs and one list of Outputs, nothing else; the
+composition root (crawler/service.py) builds them. Null objects stand in for the parts a run does
+not have, so the loop never asks "is there one?".
+"""
 
 from __future__ import annotations
 
@@ -18,17 +23,65 @@ class Frame:
 
 
 class FrameSource(Protocol):
-    """A context manager that yields frames until the recording ends or the camera stops."""
+    """A context manager that yields frames until the recording ends or the camera stops.
 
+    After entering, `camera` is the exact camera of the frames (geometry.Camera) and `default_roi`
+    the region to measure unless [odometry] roi says otherwise.
+    """
+
+    kind: str          # "camera", "sim", "replay" or "replay-fallback": the status's `source`
     description: str   # e.g. "replay demo.h264 (times from demo.pts)"
+    warnings: list
 
     def __enter__(self) -> "FrameSource": ...
     def __exit__(self, *exc) -> None: ...
     def frames(self) -> Iterator[Frame]: ...
+    def info(self) -> dict: ...          # what the status shows of the source (the sensor plan)
 
 
-class Sink(Protocol):
-    """Receives every processed frame: logs, annotated video, network publishers."""
+class Run(Protocol):
+    """What outputs may ask of the run in progress (the Daemon implements it)."""
 
-    def write(self, frame: Frame, estimate, odometer) -> None: ...
-    def close(self) -> None: ...
+    name: str
+    run_id: str
+
+    @property
+    def distance_m(self) -> float: ...
+    def status(self) -> dict: ...
+    def state(self) -> dict: ...         # what a checkpoint keeps
+
+
+class Output:
+    """Where each measured frame goes: a log, a video, the network, the checkpoint, the watchdog.
+
+    Every hook is a working no-op (like picamera2's null outputs), so an output implements only what
+    it needs. Entering opens and probes it, so a file that cannot be written fails before the first
+    frame; leaving releases it.
+    """
+
+    def __enter__(self) -> "Output":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def start(self, run: Run) -> None:
+        """Measurement begins (LEDs on, the first frame is next)."""
+
+    def write(self, frame: Frame, estimate, run: Run) -> None:
+        """One processed frame and its estimate."""
+
+    def reset(self, run: Run) -> None:
+        """The operator reset the distance: a new run."""
+
+    def report(self, status: dict) -> None:
+        """Add this output's fields (its errors, its truth) to a status being built."""
+
+    def summarize(self, summary: dict) -> None:
+        """Add this output's fields to the closing summary line."""
+
+    def stop(self, run: Run) -> None:
+        """Measurement ended (normally, by a fault or a crash): the last word."""
+
+    def close(self) -> None:
+        """Release files, sockets, sessions."""

@@ -9,6 +9,8 @@ import os
 import socket
 import time
 
+from .ports import Output
+
 
 class Notifier:
     def __init__(self, env=os.environ, clock=time.monotonic):
@@ -42,9 +44,6 @@ class Notifier:
     def ready(self, status: str = ""):
         self.send("READY=1", *([f"STATUS={status}"] if status else []))
 
-    def status(self, text: str):
-        self.send(f"STATUS={text}")
-
     def watchdog(self):
         """Call once per frame: pings only as often as the watchdog interval needs."""
         if self._sock is None or self.watchdog_s is None:
@@ -61,3 +60,26 @@ class Notifier:
         if self._sock is not None:
             self._sock.close()
             self._sock = None
+
+
+class WatchdogOutput(Output):
+    """The notify protocol as the loop's output: READY at start, WATCHDOG per frame, STOPPING at the end.
+
+    A loop that stops delivering frames stops the pings, and systemd restarts the daemon.
+    """
+
+    def __init__(self, notifier: Notifier, describe=lambda: ""):
+        self.notifier = notifier
+        self.describe = describe
+
+    def start(self, run):
+        self.notifier.ready(f"measuring from {self.describe()}")
+
+    def write(self, frame, estimate, run):
+        self.notifier.watchdog()
+
+    def stop(self, run):
+        self.notifier.stopping()
+
+    def close(self):
+        self.notifier.close()

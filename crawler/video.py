@@ -9,12 +9,14 @@ wrong speeds.
 from __future__ import annotations
 
 import logging
+import time
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
 from .errors import VideoError
+from .geometry import Camera
 from .ports import Frame
 
 _log = logging.getLogger(__name__)
@@ -53,15 +55,23 @@ def read_pts(path: str | Path) -> np.ndarray:
 
 
 class VideoReplay:
-    """A recording played back as a FrameSource."""
+    """A recording played back as a FrameSource.
 
-    def __init__(self, path: str | Path, pts: str | Path | None = None, fps: float | None = None,
-                 expect_size: tuple[int, int] | None = None):
+    `camera` describes its frames (from [camera], built by the caller); `default_roi` is the thesis's
+    square under the centre row. With `realtime`, frames are handed on no faster than their times.
+    """
+
+    def __init__(self, path: str | Path, camera: Camera, pts: str | Path | None = None,
+                 fps: float | None = None, *, realtime: bool = False, kind: str = "replay",
+                 default_roi=None):
         self.path = Path(path)
+        self.camera = camera
         self.pts_path = Path(pts) if pts else None
         self.fps = fps
-        self.expect_size = expect_size
-        self.frames_read = 0
+        self.expect_size = (camera.width, camera.height)
+        self.kind = kind
+        self.default_roi = default_roi or (0, 0, camera.width, camera.height)
+        self.pacer = Pacer() if realtime else None
         self.timing = ""
         self.description = f"replay {self.path.name}"
         self.warnings: list[str] = []
@@ -72,8 +82,6 @@ class VideoReplay:
     def __enter__(self):
         import av   # PyAV: python3-av on Raspberry Pi OS
 
-        if self.fps is not None and not self.fps > 0:
-            raise VideoError(f"--fps {self.fps} must be > 0")
         if self.path.is_dir():
             raise VideoError(f"video {str(self.path)!r} is a folder; pass the recording's file")
         if not self.path.is_file():
@@ -102,6 +110,9 @@ class VideoReplay:
         self.description = f"replay {self.path.name} ({self.timing})"
         return self
 
+    def info(self) -> dict:
+        return {}
+
     def __exit__(self, *exc):
         if self._container is not None:
             self._container.close()
@@ -125,9 +136,10 @@ class VideoReplay:
                     raise VideoError(f"{self.path.name}: frame {n} time {t:.6f} s does not increase "
                                      f"({self.timing})")
                 last = t
+                if self.pacer is not None:
+                    self.pacer.wait(t - first)
                 yield Frame(n, t - first, _y_plane(frame))
                 n += 1
-                self.frames_read = n
         except av.error.FFmpegError as exc:
             raise VideoError(f"{self.path.name}: stream breaks after frame {n}: {exc}") from None
         if n == 0:
@@ -190,3 +202,18 @@ def _y_plane(frame) -> np.ndarray:
         buf = np.frombuffer(plane, np.uint8)
         return buf.reshape(frame.height, plane.line_size)[:, :frame.width]
     return frame.to_ndarray(format="gray")
+
+
+class Pacer:
+    """Sleeps so frames are handed on no faster than their timestamps (replay --realtime)."""
+
+    def __init__(self, clock=time.monotonic, sleep=time.sleep):
+        self.clock, self.sleep = clock, sleep
+        self._t0 = None
+
+    def wait(self, t_s: float):
+        if self._t0 is None:
+            self._t0 = self.clock() - t_s
+        delay = self._t0 + t_s - self.clock()
+        if delay > 0:
+            self.sleep(delay)

@@ -13,58 +13,55 @@ import pytest
 from gpiozero.pins.mock import MockFactory, MockPWMPin
 
 from conftest import free_port, wait_for
-from crawler import config
-from crawler.checkpoint import Checkpoint
-from crawler.cli import make_camera_source, make_link
-from crawler.daemon import Daemon
-from crawler.leds import Leds
+from crawler import settings
 from crawler.sdnotify import Notifier
-from hw_sim.picamera2_fake import MappedArray, SimWorld, make_picamera2
+from crawler.service import Hardware, Mode, RunOptions, Service
+from crawler.sim import SimOptions, make_world
 
 
 class Rig:
-    """A daemon wired as `crawlerd --sim` wires it, with handles on every part."""
+    """A daemon built by the composition root exactly as `crawlerd --sim` builds it, with handles on
+    the simulated world, the mock pins and the stop flag."""
 
     def __init__(self, tmp_path, zenoh_pair, *, speed=0.3, tilt=0.0, max_frames=None, notifier=None,
-                 extra=(), brightness=None):
-        self.cfg = config.load(None, [
+                 extra=(), publish=True):
+        self.settings = settings.load(None, [
             f"mount.tilt_deg={tilt}", "leds.pins=[12, 13]", "leds.brightness=0.8",
             f"state.directory={json.dumps(str(tmp_path / 'state'))}",
             f"zenoh.listen={json.dumps(zenoh_pair['listen'])}", "zenoh.multicast=false",
             "camera.fps=60", "camera.capture_timeout_s=0.5", *extra])
-        self.world = SimWorld("imx219", tilt_deg=tilt, speed_m_s=speed)
-        self.source = make_camera_source(self.cfg, make_picamera2(self.world), description="sim",
-                                         mapped_array=MappedArray)      # zero-copy frames, as on the Pi
+        options = RunOptions(mode=Mode.SIM, max_frames=max_frames, publish=publish,
+                             sim=SimOptions(speed_m_s=speed))
+        self.world = make_world(self.settings, options.sim)
         self.pins = MockFactory(pin_class=MockPWMPin)
-        self.leds = Leds([12, 13], brightness=0.8, pin_factory=self.pins)
         self.stop = threading.Event()
-        ref = [None]
-        self.link = make_link(self.cfg, ref).open()
-        self.daemon = Daemon(self.cfg, self.source, mode="sim", leds=self.leds, link=self.link,
-                             notifier=notifier, checkpoint=Checkpoint(tmp_path / "state"),
-                             truth=self.world.true_distance_m, stop=self.stop.is_set,
-                             max_frames=max_frames, brightness=brightness)
-        ref[0] = self.daemon
+        self.service = Service(self.settings, options, Hardware(pin_factory=self.pins, notifier=notifier,
+                                                                world=self.world), stop=self.stop.is_set)
         self.stats = None
+        self.error = None
+
+    @property
+    def daemon(self):
+        return self.service.daemon
 
     def start(self):
-        self.source.__enter__()
+        self.service.__enter__()
         self.thread = threading.Thread(target=self._run)
         self.thread.start()
         return self
 
     def _run(self):
         try:
-            self.stats = self.daemon.run()
+            self.stats = self.service.run()
+        except BaseException as exc:
+            self.error = exc
         finally:
-            self.source.__exit__(None, None, None)
+            self.service.__exit__(None, None, None)
 
     def finish(self, timeout=30):
         self.stop.set()
         if hasattr(self, "thread"):
             self.thread.join(timeout)
-        self.leds.close()
-        self.link.close()
         self.pins.reset()
 
     def led_states(self):
@@ -94,7 +91,7 @@ def test_distance_on_the_topic_matches_the_simulator(tmp_path, zenoh_pair, opera
         rig.thread.join(30)
     finally:
         rig.finish()
-    assert rig.stats.error is None and rig.stats.frames == 180
+    assert rig.error is None and rig.stats.error is None and rig.stats.frames == 180
     assert wait_for(lambda: status and status[-1]["frames"] == 180, timeout=5)
     last = status[-1]
     true = last["sim_true_distance_m"]
@@ -241,38 +238,39 @@ def test_no_picamera2_says_how_to_install_it_or_falls_back_to_a_recording(render
 
 
 def test_a_crash_in_the_loop_still_switches_the_lights_off_and_saves_the_distance(tmp_path, zenoh_pair):
-    class Boom:
-        def write(self, frame, est, odometer):
+    from crawler.ports import Output
+
+    class Boom(Output):
+        def write(self, frame, est, run):
             if est.frame == 20:
-                raise ZeroDivisionError("a bug in a sink")
+                raise ZeroDivisionError("a bug in an output")
 
-        def close(self):
-            pass
-
-    rig = Rig(tmp_path, zenoh_pair)
-    rig.daemon.sinks.append(Boom())
-    rig.source.__enter__()
-    try:
+    rig = Rig(tmp_path, zenoh_pair, publish=False)
+    with rig.service as svc:
+        svc.daemon.outputs.insert(0, Boom())
         with pytest.raises(ZeroDivisionError):
-            rig.daemon.run()
+            svc.run()
         assert rig.led_states() == [0.0, 0.0]
         saved = json.loads((tmp_path / "state" / "checkpoint.json").read_text())
-        assert saved["frames"] == 21 and saved["distance_m"] == pytest.approx(rig.daemon.distance_m, abs=1e-6)
-    finally:
-        rig.source.__exit__(None, None, None)
-        rig.finish()          # (the loop's own finally already switched off and saved)
+        assert saved["frames"] == 21 and saved["distance_m"] == pytest.approx(svc.daemon.distance_m, abs=1e-6)
+    rig.finish()
 
 
 def test_auto_brightness_dims_the_leds_toward_the_target(tmp_path, zenoh_pair):
-    from crawler.leds import BrightnessLoop
+    from crawler.ports import Output
 
     # the simulated wall is ~128 grey whatever the LEDs do: a target of 60 must dim them to the floor
-    rig = Rig(tmp_path, zenoh_pair, max_frames=90, brightness=BrightnessLoop(target=60.0, gain=0.002))
+    rig = Rig(tmp_path, zenoh_pair, max_frames=90, publish=False,
+              extra=["leds.auto_brightness=true", "leds.target_grey=60"])
     levels = []
-    rig.daemon.sinks.append(type("Watch", (), {"write": lambda self, f, e, o: levels.append(rig.leds.level),
-                                               "close": lambda self: None})())
-    rig.start()
-    rig.thread.join(30)
+
+    class Watch(Output):
+        def write(self, frame, est, run):
+            levels.append(rig.service.leds.level)
+
+    with rig.service as svc:
+        svc.daemon.outputs.append(Watch())
+        svc.run()
     rig.finish()
     assert levels[0] < 0.8 and levels[-1] == pytest.approx(0.05)
     assert all(b <= a + 1e-12 for a, b in zip(levels, levels[1:]))        # monotonic dimming

@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from crawler.calibration import load_calibration
 from crawler.errors import BadGeometry
 from crawler.geometry import (Camera, Mount, PlaneProjection, camera_height, check_view,
                               make_projection)
@@ -95,7 +96,7 @@ def test_calibration_json(tmp_path):
     path = tmp_path / "cam.json"
     path.write_text(json.dumps({"camera_matrix": [[900, 0, 470], [0, 905, 350], [0, 0, 1]],
                                 "dist_coeffs": [-0.1, 0.01, 0, 0, 0], "image_size": [960, 720]}))
-    cam = Camera.from_calibration(path)
+    cam = load_calibration(path)
     assert (cam.fx, cam.fy, cam.cx, cam.cy, cam.width) == (900, 905, 470, 350, 960)
     assert cam.distortion[0] == -0.1
 

@@ -277,6 +277,7 @@ def test_scaler_crop_is_clamped_quantised_and_rendered_exactly():
 
 def test_crawler_measures_the_true_distance_through_the_fake():
     from crawler.camera import SENSOR_FOV_DEG, SENSOR_VBLANK_MIN, Picamera2Source, plan_window
+    from crawler.settings import CameraSettings
     from crawler.geometry import Mount, make_projection
     from crawler.odometry import Odometer
 
@@ -289,8 +290,8 @@ def test_crawler_measures_the_true_distance_through_the_fake():
     plan = plan_window(modes, (3280, 2464), window, out, 100.0, SENSOR_FOV_DEG["imx219"],
                        SENSOR_VBLANK_MIN["imx219"])
     assert plan.mode["size"] == (640, 480) and plan.scaler_crop == window
-    src = Picamera2Source(Picamera2, window=window, output_size=out, fps=100.0, exposure_us=2000,
-                          analogue_gain=4.0)
+    src = Picamera2Source(CameraSettings(sensor_window=window, output_size=out, fps=100.0, exposure_us=2000,
+                                         analogue_gain=4.0), Picamera2)
     with src:
         assert src.plan.scaler_crop == plan.scaler_crop and src.plan.camera == plan.camera
         odo = Odometer(src.plan.camera, make_projection("cylinder", Mount.from_car(0.30, 0.151, 0.054, tilt)),
@@ -310,10 +311,11 @@ def test_crawler_measures_the_true_distance_through_the_fake():
 
 def test_crawler_source_reports_a_stalled_camera():
     from crawler.camera import CameraStalled, Picamera2Source
+    from crawler.settings import CameraSettings
 
     clock = ManualClock()
     world, Picamera2 = _camera("ov5647", clock=clock, tilt_deg=10)
-    src = Picamera2Source(Picamera2, output_size=(160, 120), fps=30.0, capture_timeout_s=0.5)
+    src = Picamera2Source(CameraSettings(output_size=(160, 120), fps=30.0, capture_timeout_s=0.5), Picamera2)
     with src:
         frames = src.frames()
         first = next(frames)

@@ -5,7 +5,7 @@ import socket
 import pytest
 from gpiozero.pins.mock import MockFactory, MockPWMPin
 
-from crawler.checkpoint import Checkpoint
+from crawler.checkpoint import Checkpoint, CheckpointOutput
 from crawler.errors import CrawlerError
 from crawler.leds import BrightnessLoop, Leds
 from crawler.sdnotify import Notifier
@@ -49,18 +49,35 @@ def test_brightness_loop_converges_and_stays_in_bounds():
 
 
 def test_checkpoint_round_trip_atomic_and_corrupt(tmp_path):
-    cp = Checkpoint(tmp_path, every_s=10.0)
+    cp = Checkpoint(tmp_path)
     assert cp.load() is None
-    cp.save({"distance_m": 12.5, "frames": 3})
-    run_id = cp.run_id
-    again = Checkpoint(tmp_path)
-    data = again.load()
-    assert data["distance_m"] == 12.5 and again.run_id == run_id
+    cp.save({"distance_m": 12.5, "frames": 3, "run_id": "abc"})
+    data = Checkpoint(tmp_path).load()
+    assert data["distance_m"] == 12.5 and data["run_id"] == "abc"
     assert not list(tmp_path.glob("*.tmp"))
-    cp.maybe_save({"distance_m": 13.0})       # within every_s: not written
-    assert Checkpoint(tmp_path).load()["distance_m"] == 12.5
     (tmp_path / "checkpoint.json").write_text("{half")
     assert Checkpoint(tmp_path).load() is None
+
+
+def test_checkpoint_output_saves_every_interval_on_reset_and_at_stop(tmp_path):
+    class Run:
+        distance_m = 0.0
+
+        def state(self):
+            return {"distance_m": self.distance_m, "run_id": "r1"}
+
+    now, run = [0.0], Run()
+    out = CheckpointOutput(Checkpoint(tmp_path), every_s=10.0, clock=lambda: now[0])
+    out.write(None, None, run)                 # the first frame is saved at once
+    run.distance_m = 1.0
+    now[0] = 5.0
+    out.write(None, None, run)                 # within every_s: not written
+    assert Checkpoint(tmp_path).load()["distance_m"] == 0.0
+    out.reset(run)
+    assert Checkpoint(tmp_path).load()["distance_m"] == 1.0
+    run.distance_m = 2.0
+    out.stop(run)
+    assert Checkpoint(tmp_path).load()["distance_m"] == 2.0
 
 
 def test_notifier_sends_ready_watchdog_stopping(tmp_path):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from crawler.camera import Picamera2Source, import_picamera2
+from crawler.settings import CameraSettings
 
 
 def fake_classes():
@@ -27,8 +28,8 @@ def real_classes():
 @pytest.mark.parametrize("classes", [fake_classes, real_classes], ids=["fake", "csi"])
 def test_camera_delivers_the_planned_window(classes):
     camera_class, mapped_array = classes()
-    src = Picamera2Source(camera_class, mapped_array=mapped_array, output_size=(240, 240), fps=60.0,
-                          exposure_us=1500)
+    src = Picamera2Source(CameraSettings(output_size=(240, 240), fps=60.0, exposure_us=1500), camera_class,
+                          mapped_array=mapped_array)
     with src:
         plan = src.plan
         frames = []

@@ -1,4 +1,8 @@
-"""Where processed frames go besides the network: a JSONL log, an annotated video, a progress line."""
+"""Where processed frames go on disk and on the terminal: a JSONL log, an annotated video, a progress line.
+
+The network (link.py), the checkpoint (checkpoint.py) and the watchdog (sdnotify.py) are Outputs too,
+each beside the code of its concern.
+"""
 
 from __future__ import annotations
 
@@ -11,9 +15,10 @@ import cv2
 import numpy as np
 
 from .errors import CrawlerError
+from .ports import Output
 
 
-class JsonlLog:
+class JsonlLog(Output):
     """One JSON object per frame, flushed as written so a crash loses at most the current line."""
 
     def __init__(self, path: str | Path):
@@ -23,17 +28,20 @@ class JsonlLog:
         except OSError as exc:
             raise CrawlerError(f"cannot write log {str(self.path)!r}: {exc.strerror}") from None
 
-    def write(self, frame, estimate, odometer):
+    def write(self, frame, estimate, run):
         self._f.write(json.dumps(estimate.as_dict()) + "\n")
 
     def close(self):
         self._f.close()
 
 
-class Annotator:
-    """The headless version of the thesis's debug window: ROI, tracks, distance and speed on each frame."""
+class Annotator(Output):
+    """The headless version of the thesis's debug window: ROI, tracks, distance and speed on each frame.
 
-    def __init__(self, path: str | Path, fps: float = 30.0):
+    `tracks` is what it draws from: the odometer's roi, camera, tracked_points and track_origins.
+    """
+
+    def __init__(self, path: str | Path, tracks, fps: float = 30.0):
         import av
 
         self.path = Path(path)
@@ -46,9 +54,12 @@ class Annotator:
             raise CrawlerError(f"cannot write annotated video {str(self.path)!r}: {exc}") from None
         self._fps = fps
         self._stream = None
+        self.tracks = tracks
 
-    def write(self, frame, est, odometer):
+    def write(self, frame, est, run):
         import av
+
+        odometer = self.tracks
 
         img = cv2.cvtColor(frame.gray, cv2.COLOR_GRAY2BGR)
         x, y, w, h = odometer.roi
@@ -96,7 +107,7 @@ class Annotator:
             raise CrawlerError(f"cannot finish annotated video {str(self.path)!r}: {exc}") from None
 
 
-class Progress:
+class Progress(Output):
     """A single self-overwriting status line on a terminal's stderr; silent otherwise."""
 
     def __init__(self, stream=None, every_s: float = 0.5):
@@ -105,7 +116,7 @@ class Progress:
         self.every_s = every_s
         self._last = 0.0
 
-    def write(self, frame, est, odometer):
+    def write(self, frame, est, run):
         now = time.monotonic()
         if not self.enabled or now - self._last < self.every_s:
             return

@@ -1,8 +1,7 @@
-"""Bookkeeping of a run (the closing summary line) and real-time pacing of recorded frames."""
+"""Bookkeeping of a run: what it did, for the closing summary line."""
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, field
 
 
@@ -47,19 +46,3 @@ class RunStats:
         if self.error:
             out["error"] = self.error
         return out
-
-
-
-class Pacer:
-    """Sleeps so frames are handed on no faster than their timestamps (replay --realtime)."""
-
-    def __init__(self, clock=time.monotonic, sleep=time.sleep):
-        self.clock, self.sleep = clock, sleep
-        self._t0 = None
-
-    def wait(self, t_s: float):
-        if self._t0 is None:
-            self._t0 = self.clock() - t_s
-        delay = self._t0 + t_s - self.clock()
-        if delay > 0:
-            self.sleep(delay)

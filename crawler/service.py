@@ -1,0 +1,230 @@
+"""The composition root: settings and run options in, every part built, run, and closed in reverse.
+
+This is the one place that knows which parts a run has. The camera (or its fallback recording), the
+simulator or a recording; LEDs or none; the outputs (Zenoh, log, annotated video, progress,
+checkpoint, watchdog, auto-brightness, the simulator's truth); the measurement model from the
+camera the source delivers. `contextlib.ExitStack` closes whatever was opened, in reverse order,
+whatever fails. Tests build the daemon through this same class, with fakes injected through
+`Hardware`.
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import tempfile
+import time
+from contextlib import ExitStack
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from .checkpoint import Checkpoint, CheckpointOutput
+from .daemon import Daemon
+from .errors import CameraUnavailable
+from .leds import AutoBrightness, BrightnessLoop, Leds, NoLeds
+from .link import CommandQueue, ZenohLink, ZenohOutput
+from .measurement import build_odometer, describe, recording_camera, thesis_roi
+from .outputs import Annotator, JsonlLog, Progress
+from .sdnotify import Notifier, WatchdogOutput
+from .settings import Settings
+from .sim import SimOptions, SimSource, make_world
+from .stats import RunStats
+
+_log = logging.getLogger("crawlerd")
+SIM_PINS = (12, 13)                 # --sim lights mock LEDs on these when [leds] pins is empty
+SIM_STATE_DIR = Path(tempfile.gettempdir()) / "crawlerd-sim"
+
+
+class Mode(enum.Enum):
+    CAMERA = "camera"     # the CSI camera (systemd runs this)
+    SIM = "sim"           # the same daemon on hw_sim's fake camera and mock pins
+    REPLAY = "replay"     # a recording
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """What the command line says about this run, beyond the settings."""
+
+    mode: Mode = Mode.CAMERA
+    video: str | None = None            # replay
+    pts: str | None = None
+    fps: float | None = None
+    realtime: bool = False
+    publish: bool | None = None         # None: the live modes publish, a replay does not
+    log: str | None = None
+    annotate: str | None = None
+    max_frames: int | None = None
+    sim: SimOptions = field(default_factory=SimOptions)
+
+    @property
+    def publishes(self) -> bool:
+        return self.mode is not Mode.REPLAY if self.publish is None else self.publish
+
+
+@dataclass
+class Hardware:
+    """The ports a test (or --sim) injects: camera class, GPIO pin factory, systemd notifier, clock."""
+
+    camera_class: type | None = None
+    mapped_array: type | None = None
+    pin_factory: object = None
+    notifier: Notifier | None = None
+    clock: object = time.monotonic
+    world: object = None                # --sim: a prepared hw_sim SimWorld (tests keep a handle)
+
+
+class Service:
+    """One run of crawlerd, from settings to summary: `with Service(...) as svc: svc.run()`."""
+
+    def __init__(self, settings: Settings, options: RunOptions, hardware: Hardware | None = None,
+                 stop=lambda: False):
+        self.settings, self.options = settings, options
+        self.hw = hardware or Hardware()
+        self.stop = stop
+        self.mode = options.mode
+        self.commands = CommandQueue()
+        self.daemon: Daemon | None = None
+
+    # -- building ---------------------------------------------------------------------------------------
+
+    def __enter__(self) -> "Service":
+        self._stack = ExitStack()
+        try:
+            self._build(self._stack)
+        except BaseException:
+            self._stack.close()
+            raise
+        return self
+
+    def __exit__(self, *exc):
+        self._stack.close()
+
+    def _build(self, stack: ExitStack):
+        s = self.settings
+        self.source = self._open_source()
+        stack.push(self.source)         # entered already (so a camera can fall back): register its exit
+        self.odometer = build_odometer(s, self.source.camera, self.source.default_roi)
+        self.leds = stack.enter_context(self._leds())
+        self.store = None if self.mode is Mode.REPLAY else Checkpoint(s.state.directory)
+        outputs = [stack.enter_context(out) for out in self._outputs()]
+        self.daemon = Daemon(self.source, self.odometer, name=s.name, leds=self.leds, outputs=outputs,
+                             commands=self.commands, resume=self.store.load() if self.store else None,
+                             clock=self.hw.clock, stop=self.stop, max_frames=self.options.max_frames)
+
+    def _open_source(self):
+        """The frame source, entered; a camera that cannot open falls back to [camera] fallback_video."""
+        o, c = self.options, self.settings.camera
+        if self.mode is Mode.REPLAY:
+            return _entered(self._replay(o.video, o.pts, o.fps, o.realtime))
+        if self.mode is Mode.SIM:
+            world = self.hw.world or make_world(self.settings, o.sim)
+            self.hw.world = world
+            return _entered(SimSource(self.settings, world))
+        from .camera import Picamera2Source
+
+        try:
+            return _entered(Picamera2Source(c, self.hw.camera_class, mapped_array=self.hw.mapped_array))
+        except CameraUnavailable as exc:
+            if not c.fallback_video:
+                raise
+            _log.error("CAMERA UNAVAILABLE (%s); FALLING BACK TO RECORDING %s", exc, c.fallback_video)
+            source = _entered(self._replay(c.fallback_video, c.fallback_pts, c.fallback_fps, False,
+                                           kind="replay-fallback"))
+            source.description = f"FALLBACK {source.description} (camera: {exc})"
+            return source
+
+    def _replay(self, video, pts, fps, realtime, kind="replay"):
+        from .video import VideoReplay
+
+        camera = recording_camera(self.settings.camera)
+        return VideoReplay(video, camera, pts=pts, fps=fps, realtime=realtime, kind=kind,
+                           default_roi=thesis_roi(camera.width, camera.height))
+
+    def _leds(self):
+        pins = self.settings.leds.pins
+        factory = self.hw.pin_factory
+        if self.mode is Mode.SIM:
+            pins = pins or SIM_PINS
+            if factory is None:
+                from gpiozero.pins.mock import MockFactory, MockPWMPin
+
+                factory = MockFactory(pin_class=MockPWMPin)
+        if not pins or self.source.kind.startswith("replay"):
+            return NoLeds()
+        led = self.settings.leds
+        return Leds(pins, brightness=led.brightness, frequency_hz=led.frequency_hz,
+                    active_high=led.active_high, pin_factory=factory)
+
+    def _outputs(self) -> list:
+        s, o = self.settings, self.options
+        outs = []
+        if o.log:
+            outs.append(JsonlLog(o.log))
+        if o.annotate:
+            fps = o.fps or (30.0 if self.mode is Mode.REPLAY else s.camera.fps)
+            outs.append(Annotator(o.annotate, self.odometer, fps=fps))
+        outs.append(Progress())
+        if isinstance(self.source, SimSource):
+            outs.append(self.source.truth)
+        if s.leds.auto_brightness:
+            outs.append(AutoBrightness(self.leds, self.odometer.roi, BrightnessLoop(target=s.leds.target_grey)))
+        if self.store is not None:
+            outs.append(CheckpointOutput(self.store, s.state.checkpoint_s, clock=self.hw.clock))
+        if self.mode is not Mode.REPLAY:
+            outs.append(WatchdogOutput(self.hw.notifier or Notifier(), lambda: self.source.description))
+        if o.publishes:
+            link = ZenohLink(s.name, s.zenoh.zenoh_config(), on_command=self.commands.submit)
+            outs.append(ZenohOutput(link, s.zenoh.publish_hz, s.zenoh.status_hz, clock=self.hw.clock))
+        return outs
+
+    # -- running ----------------------------------------------------------------------------------------
+
+    def run(self) -> RunStats:
+        return self.daemon.run()
+
+    def summary(self) -> dict:
+        out = self.daemon.summary()
+        out.update(source=self.source.description, method=self.settings.odometry.method)
+        if self.source.warnings:
+            out["warnings"] = list(self.source.warnings)
+        return out
+
+
+def _entered(source):
+    """Enter a source outside the ExitStack, so a CameraUnavailable can fall back before anything
+    is registered; the caller pushes its __exit__."""
+    source.__enter__()
+    return source
+
+
+def sim_settings(settings: Settings, options: RunOptions, state_dir_given: bool) -> Settings:
+    """--sim: the simulated car's tilt is the mount's, and its checkpoint never the real run's."""
+    if options.sim.tilt_deg is not None:
+        settings = replace(settings, mount=replace(settings.mount, tilt_deg=options.sim.tilt_deg))
+    if not state_dir_given:
+        settings = replace(settings, state=replace(settings.state, directory=str(SIM_STATE_DIR)))
+    return settings
+
+
+def check_config(settings: Settings, options: RunOptions, hardware: Hardware | None = None) -> dict:
+    """The derived geometry of recordings, and of the live window (simulated with --sim, the real
+    camera when it can be opened)."""
+    camera = recording_camera(settings.camera)
+    out = {"name": settings.name, **describe(settings, camera, thesis_roi(camera.width, camera.height))}
+    if options.mode is Mode.REPLAY:
+        return out
+    hw = hardware or Hardware()
+    try:
+        if options.mode is Mode.SIM:
+            source = SimSource(settings, make_world(settings, options.sim))
+        else:
+            from .camera import Picamera2Source
+
+            source = Picamera2Source(settings.camera, hw.camera_class, mapped_array=hw.mapped_array)
+        with source:
+            live = describe(settings, source.camera, source.default_roi)
+            out["live"] = dict(source.info(), model=source.model, intrinsics=live["intrinsics"],
+                               m_per_px_centre=live["m_per_px_centre"])
+    except CameraUnavailable as exc:
+        out["live"] = f"camera unavailable: {exc}"
+    return out

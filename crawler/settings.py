@@ -1,0 +1,363 @@
+"""Typed settings: one frozen dataclass per TOML section, loaded once, validated in exactly one place.
+
+Every key a user may write is a field below, with its type, default and check; unknown keys are
+errors (a typo must not silently fall back to a default on a robot 80 m down a pipe), and a key
+that was renamed is refused with its new name. Command-line flags set fields directly
+(`Settings.with_values`); `--set section.key=value` parses the value as TOML first.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any, Callable
+
+from .errors import BadConfig
+from .geometry import METHODS, Mount
+
+# (section, key) of a key that no longer exists -> what to write instead
+RENAMED = {
+    ("camera", "line_time_us"): "[camera] readout_ms (the readout of the frames the odometry sees, top "
+                                "row to bottom row, in ms; on the live camera it is computed from the "
+                                "sensor mode unless you set it)",
+}
+
+
+def _f(default: Any, check: Callable[[Any], str | None] | None = None) -> Any:
+    return field(default=default, metadata={"check": check})
+
+
+# -- checks: each returns None when the value is fine, else what it must be ---------------------------
+
+def between(lo: float, hi: float, *, lo_open: bool = False, hi_open: bool = False):
+    def check(v):
+        ok = (lo < v if lo_open else lo <= v) and (v < hi if hi_open else v <= hi)
+        return None if ok else f"must be between {lo:g} and {hi:g}"
+    return check
+
+
+def positive(v) -> str | None:
+    return None if v > 0 else "must be > 0"
+
+
+def one_of(*choices: str):
+    return lambda v: None if v in choices else f"must be one of {', '.join(choices)}"
+
+
+def _odd_window(v) -> str | None:
+    return None if v >= 5 and v % 2 == 1 else "must be an odd number >= 5"
+
+
+def _name(v) -> str | None:
+    if v and all(ch.isalnum() or ch in "-_" for ch in v):
+        return None
+    return "must be letters, digits, '-' or '_' (it becomes a Zenoh key segment)"
+
+
+def _distortion(v) -> str | None:
+    return None if len(v) in (4, 5, 8) else "must be 4, 5 or 8 numbers in OpenCV order [k1, k2, p1, p2, k3]"
+
+
+def _output_size(v) -> str | None:
+    ok = len(v) == 2 and all(32 <= x <= 2048 and x % 2 == 0 for x in v)
+    return None if ok else "must be [width, height], even, 32..2048"
+
+
+def _window(v) -> str | None:
+    ok = len(v) == 4 and all(x >= 0 for x in v)
+    return None if ok else "must be [x, y, w, h] in native pixels of the sensor's active area"
+
+
+def _roi(v) -> str | None:
+    return None if len(v) == 4 else "must be four integers [x, y, w, h] in frame pixels"
+
+
+def _pins(v) -> str | None:
+    return None if all(0 <= p <= 27 for p in v) else "must be BCM GPIO numbers 0..27, e.g. [12, 13]"
+
+
+def _lgpio_frequency(v) -> str | None:
+    # lgpio's software PWM takes 0.1..10000 Hz; beyond that it raises from inside gpiozero
+    return None if 0.1 <= v <= 10000 else "must be between 0.1 and 10000 Hz (lgpio's PWM range)"
+
+
+# -- the sections -------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """The frames' camera: the recording's geometry, and how the live CSI camera is driven."""
+
+    width: int = _f(960, between(16, 8192))
+    height: int = _f(720, between(16, 8192))
+    vfov_deg: float = _f(37.16, between(0, 170, lo_open=True, hi_open=True))
+    hfov_deg: float = _f(53.50, between(0, 170, lo_open=True, hi_open=True))
+    calibration: str | None = _f(None)
+    distortion: tuple[float, ...] | None = _f(None, _distortion)
+    readout_ms: float | None = _f(None, between(0, 1000, hi_open=True))
+    hflip: bool = _f(False)
+    vflip: bool = _f(False)
+    # live camera (crawlerd without --replay): see docs/deploy.md
+    camera_num: int = _f(0, between(0, 16))
+    sensor_window: tuple[int, ...] | None = _f(None, _window)
+    output_size: tuple[int, ...] = _f((240, 240), _output_size)
+    fps: float = _f(60.0, between(0, 1000, lo_open=True))
+    exposure_us: int = _f(1500, between(1, 1_000_000))
+    analogue_gain: float = _f(4.0, between(1, 64))
+    sensor_hfov_deg: float | None = _f(None, between(0, 170, lo_open=True, hi_open=True))
+    sensor_vfov_deg: float | None = _f(None, between(0, 170, lo_open=True, hi_open=True))
+    capture_timeout_s: float = _f(2.0, between(0.05, 60))
+    fallback_video: str | None = _f(None)
+    fallback_pts: str | None = _f(None)
+    fallback_fps: float | None = _f(None, between(0.1, 1000))
+
+    def __post_init__(self):
+        _check_fields(self, "camera")
+        if self.exposure_us > 1e6 / self.fps:
+            raise BadConfig(f"[camera] exposure_us = {self.exposure_us} is longer than a frame at "
+                            f"fps = {self.fps:g}; shorten it (motion blur) or lower fps")
+        if (self.sensor_hfov_deg is None) != (self.sensor_vfov_deg is None):
+            raise BadConfig("[camera] sensor_hfov_deg and sensor_vfov_deg go together; set both or neither")
+
+    @property
+    def readout_s(self) -> float | None:
+        return None if self.readout_ms is None else self.readout_ms / 1000.0
+
+
+@dataclass(frozen=True)
+class MountSettings:
+    """Where the camera sits in the pipe (thesis Eq. 3.4, or the height directly)."""
+
+    pipe_diameter_m: float = _f(0.30)
+    car_width_m: float = _f(0.151)
+    camera_offset_m: float = _f(0.054)
+    height_m: float | None = _f(None)
+    tilt_deg: float = _f(0.0, between(-80, 80))
+
+    def __post_init__(self):
+        _check_fields(self, "mount")
+        self.mount()   # impossible geometry (car wider than the pipe, camera outside it) is refused here
+
+    def mount(self) -> Mount:
+        if self.height_m is not None:
+            return Mount.from_height(self.pipe_diameter_m, self.height_m, self.tilt_deg)
+        return Mount.from_car(self.pipe_diameter_m, self.car_width_m, self.camera_offset_m, self.tilt_deg)
+
+
+@dataclass(frozen=True)
+class OdometrySettings:
+    method: str = _f("cylinder", one_of(*METHODS))
+    roi: tuple[int, ...] | None = _f(None, _roi)
+    max_features: int = _f(30, between(8, 2000))
+    win_px: int = _f(9, _odd_window)
+    levels: int = _f(1, between(0, 6))
+    max_roundtrip_px: float = _f(0.5, positive)
+    min_tracks: int = _f(8, between(3, 2000))
+    max_baseline_px: float = _f(120.0, positive)
+    speed_window_s: float = _f(0.25, positive)
+    max_incidence_deg: float = _f(70.0, between(0, 90, lo_open=True, hi_open=True))
+
+    def __post_init__(self):
+        _check_fields(self, "odometry")
+        if self.min_tracks >= self.max_features:
+            raise BadConfig(f"[odometry] min_tracks = {self.min_tracks} must be >= 3 and below "
+                            f"max_features = {self.max_features}")
+
+
+@dataclass(frozen=True)
+class LedSettings:
+    pins: tuple[int, ...] = _f((), _pins)
+    brightness: float = _f(0.8, between(0, 1))
+    frequency_hz: float = _f(1000.0, _lgpio_frequency)
+    active_high: bool = _f(True)
+    auto_brightness: bool = _f(False)
+    target_grey: float = _f(110.0, between(0, 255))
+
+    def __post_init__(self):
+        _check_fields(self, "leds")
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    mode: str | None = _f(None, one_of("peer", "client", "router"))
+    listen: tuple[str, ...] = _f(())
+    connect: tuple[str, ...] = _f(())
+    config: str | None = _f(None)
+    multicast: bool = _f(True)
+    publish_hz: float = _f(30.0, between(0, 1000, lo_open=True))
+    status_hz: float = _f(1.0, between(0, 1000, lo_open=True))
+
+    def __post_init__(self):
+        _check_fields(self, "zenoh")
+        self.zenoh_config()     # zenoh parses the endpoints and the config file: errors now, not mid-run
+
+    def zenoh_config(self):
+        from .link import make_zenoh_config
+
+        return make_zenoh_config(self.mode, self.listen, self.connect, self.config, self.multicast)
+
+
+@dataclass(frozen=True)
+class StateSettings:
+    directory: str = _f("/var/lib/crawlerd")
+    checkpoint_s: float = _f(1.0, positive)
+
+    def __post_init__(self):
+        _check_fields(self, "state")
+
+
+SECTIONS = {"camera": CameraSettings, "mount": MountSettings, "odometry": OdometrySettings,
+            "leds": LedSettings, "zenoh": ZenohSettings, "state": StateSettings}
+
+
+@dataclass(frozen=True)
+class Settings:
+    """The whole configuration: `name` and one object per section."""
+
+    name: str = _f("crawler1", _name)
+    camera: CameraSettings = field(default_factory=CameraSettings)
+    mount: MountSettings = field(default_factory=MountSettings)
+    odometry: OdometrySettings = field(default_factory=OdometrySettings)
+    leds: LedSettings = field(default_factory=LedSettings)
+    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+    state: StateSettings = field(default_factory=StateSettings)
+
+    def __post_init__(self):
+        _check_field(self, "", "name", self.name, "str")
+
+    @classmethod
+    def from_dict(cls, data: dict, origin: str = "the configuration") -> "Settings":
+        """A parsed TOML mapping -> Settings; unknown or renamed keys and wrong types are refused."""
+        top = {}
+        sections = {}
+        for key, value in data.items():
+            if key in SECTIONS and isinstance(value, dict):
+                sections[key] = SECTIONS[key](**_section_values(SECTIONS[key], key, value, origin))
+            elif key == "name":
+                top["name"] = _coerce("", key, value, "str")
+            else:
+                raise BadConfig(f"{origin}: unknown key or section {key!r}; known sections: "
+                                f"{', '.join('[' + s + ']' for s in SECTIONS)}")
+        return cls(**top, **sections)
+
+    def with_values(self, values: dict[str, Any], origin: str = "the command line") -> "Settings":
+        """These settings with `{"section.key": value}` replaced (a key without a section is top-level)."""
+        out = self
+        for dotted, value in values.items():
+            section, _, key = dotted.rpartition(".")
+            if not section:
+                if key != "name":
+                    raise BadConfig(f"{origin}: unknown key {key!r}; keys outside a section: name")
+                out = replace(out, name=_coerce("", key, value, "str"))
+                continue
+            if section not in SECTIONS:
+                raise BadConfig(f"{origin}: unknown section [{section}]; known sections: "
+                                f"{', '.join('[' + s + ']' for s in SECTIONS)}")
+            cls = SECTIONS[section]
+            new = _section_values(cls, section, {key: value}, origin)
+            out = replace(out, **{section: replace(getattr(out, section), **new)})
+        return out
+
+
+def load(path: str | Path | None = None, sets: list[str] = (), values: dict[str, Any] | None = None) -> Settings:
+    """Defaults, then the TOML file, then `--set section.key=value` items, then typed flag values."""
+    settings = Settings()
+    if path is not None:
+        settings = Settings.from_dict(_read_toml(Path(path)), str(path))
+    for item in sets:
+        settings = settings.with_values(parse_set(item), f"--set {item}")
+    if values:
+        settings = settings.with_values(values)
+    return settings
+
+
+def parse_set(item: str) -> dict[str, Any]:
+    """'mount.tilt_deg=24' -> {'mount.tilt_deg': 24}; the value is read as TOML, bare words as text."""
+    key, sep, value = item.partition("=")
+    if not sep or not key.strip():
+        raise BadConfig(f"--set {item!r} must look like section.key=value, e.g. mount.tilt_deg=24")
+    try:
+        parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        parsed = value.strip()   # bare words are strings: method=plane
+    return {key.strip(): parsed}
+
+
+def _read_toml(path: Path) -> dict:
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise BadConfig(f"config file {str(path)!r} not found; pass --config PATH") from None
+    except IsADirectoryError:
+        raise BadConfig(f"config file {str(path)!r} is a folder; pass the .toml file") from None
+    except OSError as exc:
+        raise BadConfig(f"config file {str(path)!r} cannot be read: {exc.strerror}") from None
+    except UnicodeDecodeError:
+        raise BadConfig(f"config file {str(path)!r} is not UTF-8 text (a TOML file is)") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise BadConfig(f"config file {str(path)!r} is not valid TOML: {exc}") from None
+
+
+# -- the one validator ----------------------------------------------------------------------------------
+
+_TYPES = {"int": (int,), "float": (int, float), "bool": (bool,), "str": (str,)}
+_TYPE_NAMES = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string"}
+
+
+def _section_values(cls, section: str, data: dict, origin: str) -> dict:
+    known = {f.name: f for f in fields(cls)}
+    out = {}
+    for key, value in data.items():
+        if (section, key) in RENAMED:
+            raise BadConfig(f"{origin}: [{section}] {key} was renamed; use {RENAMED[section, key]}")
+        if key not in known:
+            raise BadConfig(f"{origin}: unknown key [{section}] {key}; known keys: {', '.join(known)}")
+        out[key] = _coerce(section, key, value, known[key].type)
+    return out
+
+
+def _where(section: str, key: str) -> str:
+    return f"[{section}] {key}" if section else key
+
+
+def _coerce(section: str, key: str, value, annotation: str):
+    """A TOML value to the field's type (lists become tuples, ints become floats), or BadConfig."""
+    base, optional = annotation.removesuffix(" | None"), annotation.endswith(" | None")
+    if value is None and optional:
+        return None
+    if base.startswith("tuple["):
+        item = base[len("tuple["):].split(",")[0].strip()
+        if not isinstance(value, (list, tuple)):
+            raise BadConfig(f"{_where(section, key)} = {value!r} must be a list of "
+                            f"{_TYPE_NAMES[item].removeprefix('a ').removeprefix('an ')}s")
+        return tuple(_coerce(section, key, v, item) for v in value)
+    ok = isinstance(value, _TYPES[base]) and not (isinstance(value, bool) and base in ("int", "float"))
+    if not ok:
+        raise BadConfig(f"{_where(section, key)} = {value!r} must be {_TYPE_NAMES[base]}")
+    if base == "float":
+        if not math.isfinite(value):
+            raise BadConfig(f"{_where(section, key)} = {value!r} must be a finite number")
+        return float(value)
+    return value
+
+
+def _check_field(obj, section: str, name: str, value, annotation: str) -> None:
+    _coerce(section, name, value, annotation)         # the type, also for values set in Python
+    check = next(f for f in fields(obj) if f.name == name).metadata.get("check")
+    if check is None or value is None:
+        return
+    problem = check(value)
+    if problem:
+        raise BadConfig(f"{_where(section, name)} = {_show(value)} {problem}")
+
+
+def _check_fields(obj, section: str) -> None:
+    for f in fields(obj):
+        _check_field(obj, section, f.name, getattr(obj, f.name), f.type)
+
+
+def _show(value) -> str:
+    return repr(list(value)) if isinstance(value, tuple) else repr(value)
