@@ -1,20 +1,47 @@
 """The run's distance on disk, so a restarted daemon resumes instead of starting from zero.
 
 Written atomically (temporary file, fsync, rename): a power cut leaves the old or the new file, never
-half of one.
+half of one. Writing happens on a thread of its own: an SD card that stalls for tens of milliseconds
+must not stall the frame loop. Everything read back is validated; a file that is not a valid
+checkpoint is moved aside (kept, named with the time), never silently overwritten.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import math
 import os
+import re
+import threading
 import time
 from pathlib import Path
 
 from .ports import Output
 
 _log = logging.getLogger(__name__)
+MAX_DISTANCE_M = 1e6          # a checkpoint further than this is not a pipe run
+RUN_ID = re.compile(r"^[0-9a-f]{6,32}$")
+
+
+class CorruptCheckpoint(ValueError):
+    """The state file is not a valid checkpoint."""
+
+
+def validate(data) -> dict:
+    """The checkpoint's fields, checked: a finite distance, a run id, a frame count."""
+    if not isinstance(data, dict):
+        raise CorruptCheckpoint("not a JSON object")
+    d = data.get("distance_m")
+    if isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d) or abs(d) > MAX_DISTANCE_M:
+        raise CorruptCheckpoint(f"distance_m = {d!r} is not a finite distance")
+    run_id = data.get("run_id")
+    if not isinstance(run_id, str) or not RUN_ID.match(run_id):
+        raise CorruptCheckpoint(f"run_id = {run_id!r} is not a run id")
+    frames = data.get("frames", 0)
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 0:
+        raise CorruptCheckpoint(f"frames = {frames!r} is not a frame count")
+    return dict(data, distance_m=float(d))
 
 
 class Checkpoint:
@@ -22,54 +49,119 @@ class Checkpoint:
 
     def __init__(self, directory: str | Path):
         self.path = Path(directory) / "checkpoint.json"
+        self.problem: str | None = None       # what went wrong reading it (kept until a reset)
 
     def load(self) -> dict | None:
-        """The saved run ({distance_m, run_id, ...}), or None if there is none (or it is unreadable:
-        logged, then ignored)."""
+        """The saved run, or None if there is none. A corrupt one is moved aside and reported."""
         try:
-            data = json.loads(self.path.read_text())
-            data["distance_m"] = float(data["distance_m"])
-            data["run_id"] = str(data["run_id"])
+            text = self.path.read_text()
         except FileNotFoundError:
             return None
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            _log.warning("checkpoint %s unreadable (%s); starting a new run from 0 m", self.path, exc)
-            return None
-        return data
-
-    def save(self, state: dict):
-        data = dict(state, saved_unix_s=round(time.time(), 3))
-        tmp = self.path.with_suffix(".tmp")
+        except (OSError, UnicodeDecodeError) as exc:
+            return self._set_aside(f"unreadable ({exc})", "")
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            with open(tmp, "w") as f:
-                json.dump(data, f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, self.path)
+            return validate(json.loads(text))
+        except (ValueError, CorruptCheckpoint) as exc:
+            return self._set_aside(str(exc), text)
+
+    def _set_aside(self, why: str, text: str) -> None:
+        aside = self.path.with_name(f"checkpoint.corrupt-{time.strftime('%Y%m%d-%H%M%S')}.json")
+        try:
+            os.replace(self.path, aside)
+            kept = f"kept as {aside.name}"
         except OSError as exc:
-            _log.warning("cannot write checkpoint %s: %s", self.path, exc)
+            kept = f"could not be moved aside ({exc.strerror})"
+        m = re.search(r'"distance_m"\s*:\s*(-?[0-9.eE+]+)', text)
+        lost = f"the distance it held ({m.group(1)} m) is lost" if m else "its distance is lost"
+        self.problem = f"checkpoint {self.path} was corrupt ({why}); {kept}; {lost}; started a new run from 0 m"
+        _log.error("%s", self.problem)
+        return None
+
+    def save(self, state: dict) -> None:
+        """Write atomically; raises OSError (the caller reports it)."""
+        data = dict(state, saved_unix_s=round(time.time(), 3))
+        text = json.dumps(data, allow_nan=False)
+        tmp = self.path.with_suffix(".tmp")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, self.path)
 
 
 class CheckpointOutput(Output):
-    """Saves the run's state every `every_s`, at once on a reset, and when measurement stops."""
+    """Hands the run's state to a writer thread every `every_s` (10 Hz by default), at once on a
+    reset, and writes it one last time when measurement stops. The loop never waits for the disk."""
 
-    def __init__(self, store: Checkpoint, every_s: float = 1.0, clock=time.monotonic):
+    def __init__(self, store: Checkpoint, every_s: float = 0.1, clock=time.monotonic):
         self.store = store
         self.every_s = every_s
         self.clock = clock
         self._last: float | None = None
+        self._pending: dict | None = None
+        self._wake = threading.Condition()
+        self._closing = False
+        self.error: str | None = None         # the latest write failure, None once a write succeeds
+        self.saved_unix_s: float | None = None
+        self._thread = threading.Thread(target=self._writer, name="checkpoint", daemon=True)
+        self._thread.start()
 
-    def _save(self, run):
+    def _writer(self):
+        while True:
+            with self._wake:
+                while self._pending is None and not self._closing:
+                    self._wake.wait()
+                state, self._pending = self._pending, None
+                if state is None:
+                    return
+            self._write(state)
+
+    def _write(self, state: dict):
+        try:
+            self.store.save(state)
+        except (OSError, ValueError) as exc:
+            if self.error is None:
+                _log.error("cannot write checkpoint %s: %s", self.store.path, exc)
+            self.error = f"cannot write checkpoint {self.store.path}: {getattr(exc, 'strerror', None) or exc}"
+        else:
+            if self.error:
+                _log.warning("checkpoint %s written again", self.store.path)
+            self.error, self.saved_unix_s = None, time.time()
+
+    def _hand_over(self, run):
         self._last = self.clock()
-        self.store.save(run.state())
+        with self._wake:
+            self._pending = run.state()
+            self._wake.notify()
 
     def write(self, frame, estimate, run):
         if self._last is None or self.clock() - self._last >= self.every_s:
-            self._save(run)
+            self._hand_over(run)
 
     def reset(self, run):
-        self._save(run)
+        self.store.problem = None             # the operator has seen it: a new run
+        self._hand_over(run)
+
+    def report(self, status):
+        problem = self.error or self.store.problem
+        status["checkpoint"] = {"path": str(self.store.path), "saved_unix_s": self.saved_unix_s,
+                                "error": problem}
+        if problem and status.get("last_error") is None:
+            status["last_error"] = problem
 
     def stop(self, run):
-        self._save(run)
+        """The last state, written now (synchronously: the process may be about to exit)."""
+        self._shut_down()
+        self._write(run.state())
+
+    def _shut_down(self):
+        with self._wake:
+            self._closing = True
+            self._pending = None
+            self._wake.notify()
+        self._thread.join(timeout=5.0)
+
+    def close(self):
+        if not self._closing:
+            self._shut_down()

@@ -145,13 +145,18 @@ def run(settings, options, hardware=None) -> int:
     with StopSignals() as stop:
         with Service(settings, options, hardware, stop=lambda: bool(stop)) as svc:
             stats = svc.run()
-            summary = svc.summary()
-    if stats.frames == 0 and not stats.error:
+        summary = svc.summary()         # after closing: a file that could not be finished is in it
+        stopped = bool(stop)
+    if stats.frames == 0 and not stats.error and not stopped:
         stats.error = summary["error"] = "no frames were processed"
+    elif stats.frames and not stats.tracked and not stats.error:
+        stats.error = summary["error"] = (
+            f"tracking was never acquired in {stats.frames} frames: the wall shows no texture the "
+            "odometry can follow (black, uniform, out of focus or overexposed frames?)")
     print(json.dumps(summary), flush=True)
     if stats.error:
         print(f"{PROG}: error: {stats.error}", file=sys.stderr)
-        return 2 if stats.frames == 0 else 1    # nothing measured: the input was bad
+        return 2 if stats.frames == 0 else 1    # nothing measured at all: the input was bad
     for w in summary.get("warnings", []):
         print(f"{PROG}: warning: {w}", file=sys.stderr)
     return 0

@@ -9,12 +9,13 @@ commands for it.
 from __future__ import annotations
 
 import logging
+import math
 import time
 import uuid
 
 from .errors import CrawlerError
 from .leds import NoLeds
-from .link import CommandQueue
+from .commands import CommandQueue, CommandRefused, number
 from .odometry import Odometer
 from .stats import RunStats
 
@@ -82,27 +83,25 @@ class Daemon:
     # -- control --------------------------------------------------------------------------------------
 
     def handle(self, request: dict) -> dict:
-        """A control request, run in the frame loop. Raises ValueError for a malformed one."""
+        """A command, run in the frame loop. Raises CommandRefused for one that cannot be run."""
         cmd = request.get("cmd")
         if cmd == "reset":
-            self.odometer.set_distance(0.0)
+            if math.isfinite(self.odometer.distance):
+                self.odometer.set_distance(0.0)
+            else:                              # whatever state it is in, a reset starts clean
+                self.odometer.reset(distance=0.0)
             self.run_id = new_run_id()
             for output in self.outputs:
                 output.reset(self)
             _log.info("distance reset by operator; new run %s", self.run_id)
             return {"cmd": "reset", "distance_m": 0.0, "run_id": self.run_id}
         if cmd == "led":
-            try:
-                level = float(request.get("level"))
-            except (TypeError, ValueError):
-                raise ValueError(f"led level {request.get('level')!r} must be a number 0..1") from None
-            if not 0.0 <= level <= 1.0:
-                raise ValueError(f"led level {level} must be between 0 and 1")
+            level = number(request, "level", 0.0, 1.0)
             self.leds.set(level)
             return {"cmd": "led", "level": level}
         if cmd == "status":
             return self.status()
-        raise ValueError(f"unknown cmd {cmd!r}; use reset, led or status")
+        raise CommandRefused(f"unknown command {cmd!r}; the commands are cmd/reset and cmd/led?level=0..1")
 
     # -- the loop -------------------------------------------------------------------------------------
 

@@ -1,11 +1,16 @@
-"""Zenoh: the crawler's distance, speed and status out to the operator, control requests in.
+"""Zenoh: the crawler's distance, speed and status out to the operator, commands in.
 
 Key expressions, all under `crawler/<name>/` (docs/topics.md has every payload field):
-  distance  JSON per published estimate: t_s, distance_m, speed_m_s, quality, tracking, seq, ...
-  speed     JSON: t_s, speed_m_s, seq
-  status    JSON about once a second
-  alive     liveliness token: present while the daemon runs
-  control   queryable: cmd=reset | cmd=led&level=0.5 | cmd=status (selector parameters or a JSON payload)
+  distance    JSON per published estimate: t_s, distance_m, speed_m_s, quality, tracking, seq, ...
+  speed       JSON: t_s, speed_m_s, seq
+  status      JSON about once a second; also a queryable that answers a get with the status now
+  alive       liveliness token: present while the daemon runs
+  cmd/<verb>  queryables: cmd/reset, cmd/led?level=0.5 (selector parameters or a JSON payload)
+
+Commands and status have keys of their own, so an access-control list can let everyone read and
+only the operator command. Queries are received on channels and answered from a worker thread (never
+from inside a zenoh callback), and every query is dropped once answered, so the asker's get() ends
+at once. All payloads are strict JSON with the application/json encoding.
 
 The network is never allowed to stop measurement: if the session cannot be opened the link retries in
 the background and publishing is a no-op meanwhile; once a session exists, zenoh itself reconnects to
@@ -16,85 +21,54 @@ from __future__ import annotations
 
 import json
 import logging
-import re
+import math
 import threading
 import time
-from concurrent.futures import Future, TimeoutError as FutureTimeout
-from pathlib import Path
 
-from .errors import BadConfig
+from .commands import CommandQueue, CommandRefused, parse_arguments
 from .ports import Output
+from .zenoh_config import make_zenoh_config, zenoh_message  # noqa: F401  (the monitor imports it here)
 
 _log = logging.getLogger(__name__)
-
-from .zenoh_flags import ZENOH_MODES  # noqa: F401  (one list of modes)
-
-
-def zenoh_message(exc) -> str:
-    """zenoh's error text without the Rust source locations it appends."""
-    return re.sub(r" at /\S+?:\d+\.?", "", str(exc)).strip()
+STATUS_WAIT_S = 0.5      # a status query waits this long for the loop, then gets the last status
 
 
-def _check_ports(kind: str, endpoints) -> None:
-    """zenoh parses endpoints but accepts any port for `connect` (it just never connects): refuse it."""
-    for e in endpoints:
-        m = re.match(r"^(tcp|udp|tls|quic|ws)/.*:(\d+)(?:[?#].*)?$", str(e))
-        if m and not 0 < int(m.group(2)) < 65536:
-            raise BadConfig(f"[zenoh] {kind} endpoint {e!r}: port {m.group(2)} must be 1..65535")
-
-
-def make_zenoh_config(mode: str | None = "peer", listen=(), connect=(), config_file: str | None = None,
-                      multicast: bool = True):
-    """One place that turns flags/TOML into a zenoh.Config, naming the culprit when it fails."""
-    import zenoh
-
-    _check_ports("listen", listen)
-    _check_ports("connect", connect)
-
-    if config_file:
-        path = Path(config_file)
-        if not path.is_file():
-            raise BadConfig(f"[zenoh] config = {config_file!r}: no such file (a zenoh JSON5 config)")
-        try:
-            conf = zenoh.Config.from_file(str(path))
-        except Exception as exc:   # zenoh raises its own ZError
-            raise BadConfig(f"[zenoh] config = {config_file!r} is not a valid zenoh config: "
-                            f"{zenoh_message(exc)}") from None
-    else:
-        conf = zenoh.Config()
-    if mode is None and not config_file:
-        mode = "peer"
+def strict_json(payload: dict) -> str:
+    """JSON without NaN/Infinity (not JSON); a non-finite number becomes null."""
     try:
-        if mode is not None:     # else the config file's own mode stands
-            conf.insert_json5("mode", json.dumps(mode))
-        if listen:
-            conf.insert_json5("listen/endpoints", json.dumps(list(listen)))
-        if connect:
-            conf.insert_json5("connect/endpoints", json.dumps(list(connect)))
-        if not multicast:
-            conf.insert_json5("scouting/multicast/enabled", "false")
-    except Exception as exc:
-        raise BadConfig(f"zenoh endpoints listen={list(listen)} connect={list(connect)} rejected: "
-                        f"{zenoh_message(exc)}; an endpoint looks like tcp/192.168.1.10:7447") from None
-    return conf
+        return json.dumps(payload, allow_nan=False)
+    except ValueError:
+        return json.dumps(_finite(payload), allow_nan=False)
+
+
+def _finite(v):
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_finite(x) for x in v]
+    return v
 
 
 class ZenohLink:
-    """Publishers, liveliness token and the control queryable of one crawler."""
+    """Publishers, liveliness token, the status and command queryables of one crawler."""
 
-    def __init__(self, name: str, zenoh_config, on_command=None, retry_s: float = 2.0):
+    def __init__(self, name: str, zenoh_config, commands: CommandQueue | None = None, retry_s: float = 2.0):
         self.name = name
         self.prefix = f"crawler/{name}"
         self._config = zenoh_config
-        self._on_command = on_command
+        self.commands = commands
         self.retry_s = retry_s
         self.session = None
         self._pubs = {}
         self._decls = []
+        self._workers: list[threading.Thread] = []
         self._lock = threading.Lock()
         self._closed = threading.Event()
         self._retry = None
         self.last_error = None
+        self.last_status: dict | None = None
         self.seq = 0
 
     # -- life ---------------------------------------------------------------------------------------
@@ -111,20 +85,33 @@ class ZenohLink:
 
         try:
             session = zenoh.open(self._config)
-            pubs = {k: session.declare_publisher(f"{self.prefix}/{k}") for k in ("distance", "speed", "status")}
-            decls = [session.liveliness().declare_token(f"{self.prefix}/alive"),
-                     session.declare_queryable(f"{self.prefix}/control", self._on_query)]
         except Exception as exc:
             if self.last_error is None:
                 _log.warning("zenoh session cannot be opened (%s); measuring anyway, retrying every %.0f s",
-                             exc, self.retry_s)
-            self.last_error = f"zenoh: {exc}"
+                             zenoh_message(exc), self.retry_s)
+            self.last_error = f"zenoh: {zenoh_message(exc)}"
+            return False
+        try:
+            json_enc = zenoh.Encoding.APPLICATION_JSON
+            pubs = {k: session.declare_publisher(f"{self.prefix}/{k}", encoding=json_enc)
+                    for k in ("distance", "speed", "status")}
+            queryables = [session.declare_queryable(f"{self.prefix}/status"),
+                          session.declare_queryable(f"{self.prefix}/cmd/*")]
+            decls = [session.liveliness().declare_token(f"{self.prefix}/alive"), *queryables]
+        except Exception as exc:
+            session.close()               # a declare that fails must not leave the port held
+            self.last_error = f"zenoh: {zenoh_message(exc)}"
+            _log.error("zenoh declarations failed (%s); retrying", self.last_error)
             return False
         with self._lock:
             if self._closed.is_set():
                 session.close()
                 return True
             self.session, self._pubs, self._decls = session, pubs, decls
+            self._workers = [threading.Thread(target=self._serve, args=(q,), name=f"zenoh-{i}", daemon=True)
+                             for i, q in enumerate(queryables)]
+            for w in self._workers:
+                w.start()
         if self.last_error:
             _log.warning("zenoh session open after retrying")
         self.last_error = None
@@ -140,6 +127,7 @@ class ZenohLink:
         with self._lock:
             session, self.session = self.session, None
             self._pubs, decls, self._decls = {}, self._decls, []
+            workers, self._workers = self._workers, []
         if session is not None:
             for d in decls:
                 try:
@@ -147,6 +135,8 @@ class ZenohLink:
                 except Exception:
                     pass
             session.close()
+        for w in workers:
+            w.join(timeout=2.0)
 
     @property
     def connected(self) -> bool:
@@ -159,7 +149,7 @@ class ZenohLink:
         if pub is None:
             return
         try:
-            pub.put(json.dumps(payload))
+            pub.put(strict_json(payload))
         except Exception as exc:   # never let the network stop the frame loop
             self.last_error = f"zenoh put {key}: {exc}"
 
@@ -169,76 +159,56 @@ class ZenohLink:
         self._put("speed", {"t_s": est["t_s"], "speed_m_s": est["speed_m_s"], "seq": self.seq})
 
     def publish_status(self, status: dict):
+        self.last_status = status
         self._put("status", status)
 
     # -- in -----------------------------------------------------------------------------------------
 
-    def _on_query(self, query):
-        """Runs on a zenoh thread: parse, hand to the frame loop, reply with its answer or an error."""
-        try:
-            request = parse_request(query)
-            if self._on_command is None:
-                raise ValueError("this crawler takes no commands")
-            answer = self._on_command(request)
-            # on our own key: a wildcard query (crawler/*/control) then gets one reply per crawler
-            query.reply(f"{self.prefix}/control", json.dumps(dict(answer, ok=True)))
-        except Exception as exc:   # a malformed request must never reach the daemon
+    def _serve(self, queryable):
+        """A worker thread: take each query off the queryable's channel, answer it, drop it."""
+        while not self._closed.is_set():
             try:
-                query.reply_err(json.dumps({"ok": False, "error": str(exc)}))
+                query = queryable.recv()
+            except Exception:             # undeclared or the session closed: done
+                return
+            try:
+                self._answer(query)
+            finally:
+                query.drop()              # finalise now: the asker's get() ends with our reply
+
+    def _answer(self, query):
+        import zenoh
+
+        key = str(query.key_expr)
+        verb = key.rsplit("/", 1)[-1]
+        try:
+            payload = query.payload.to_string() if query.payload is not None else None
+            args = parse_arguments(str(query.parameters or ""), payload)
+            answer = self._status() if key.endswith("/status") else self._command(verb, args)
+            # on our own concrete key: a wildcard query (crawler/*/...) gets one reply per crawler
+            reply_key = f"{self.prefix}/status" if key.endswith("/status") else f"{self.prefix}/cmd/{verb}"
+            query.reply(reply_key, strict_json(dict(answer, ok=True)), encoding=zenoh.Encoding.APPLICATION_JSON)
+        except Exception as exc:          # a malformed request never reaches the daemon
+            try:
+                query.reply_err(strict_json({"ok": False, "error": str(exc)}),
+                                encoding=zenoh.Encoding.APPLICATION_JSON)
             except Exception:
                 _log.debug("reply_err failed", exc_info=True)
 
+    def _command(self, verb: str, args: dict) -> dict:
+        if self.commands is None:
+            raise CommandRefused("this crawler takes no commands")
+        return self.commands.submit(dict(args, cmd=verb))
 
-def parse_request(query) -> dict:
-    """A control request from selector parameters (`?cmd=led;level=0.3`) and/or a JSON object payload."""
-    request = {}
-    params = str(query.parameters or "")
-    for part in params.replace(";", "&").split("&"):
-        if part:
-            key, _, value = part.partition("=")
-            request[key.strip()] = value.strip()
-    if query.payload is not None:
-        raw = query.payload.to_string()
-        if raw.strip():
+    def _status(self) -> dict:
+        if self.commands is not None:
             try:
-                body = json.loads(raw)
-            except ValueError:
-                raise ValueError(f"payload {raw[:60]!r} is not JSON") from None
-            if not isinstance(body, dict):
-                raise ValueError(f"payload {raw[:60]!r} must be a JSON object")
-            request.update(body)
-    if "cmd" not in request:
-        raise ValueError("missing cmd; use cmd=reset, cmd=led with level=0..1, or cmd=status")
-    return request
-
-
-class CommandQueue:
-    """Hands control requests from zenoh threads to the frame loop and waits for its answer."""
-
-    def __init__(self, timeout_s: float = 2.0):
-        self.timeout_s = timeout_s
-        self._items: list[tuple[dict, Future]] = []
-        self._lock = threading.Lock()
-
-    def submit(self, request: dict) -> dict:
-        fut: Future = Future()
-        with self._lock:
-            self._items.append((request, fut))
-        try:
-            return fut.result(self.timeout_s)
-        except FutureTimeout:
-            raise RuntimeError(f"crawler busy: no answer within {self.timeout_s:g} s "
-                               "(is the camera delivering frames?)") from None
-
-    def drain(self, handle):
-        """Frame loop: answer every pending request with handle(request) -> dict (or its exception)."""
-        with self._lock:
-            items, self._items = self._items, []
-        for request, fut in items:
-            try:
-                fut.set_result(handle(request))
-            except Exception as exc:
-                fut.set_exception(exc)
+                return self.commands.submit({"cmd": "status"}, timeout_s=STATUS_WAIT_S)
+            except TimeoutError:
+                pass
+        if self.last_status is None:
+            raise TimeoutError("no status yet: the crawler has not measured a frame")
+        return dict(self.last_status, stale=True)
 
 
 class ZenohOutput(Output):

@@ -7,6 +7,7 @@ each beside the code of its concern.
 from __future__ import annotations
 
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -18,21 +19,62 @@ from .errors import CrawlerError
 from .ports import Output
 
 
+MIN_FREE_BYTES = 1 << 20     # refuse to start a file on a disk with less room than this
+
+
+class OutputError(CrawlerError, OSError):
+    """An output file cannot be written; the message names the file and the OS error."""
+
+
+def probe_file(path: Path, what: str) -> None:
+    """Fail now, before the first frame, if `path` cannot take a file: a missing or unwritable folder,
+    a device, a full disk. Creates the (empty) file."""
+    where = f"cannot write {what} {str(path)!r}"
+    if path.is_dir():
+        raise OutputError(f"{where}: it is a folder; give a file name")
+    if not path.parent.is_dir():
+        raise OutputError(f"{where}: folder {str(path.parent)!r} does not exist")
+    if path.exists() and not (path.is_file() or path.is_fifo() or str(path) == os.devnull):
+        raise OutputError(f"{where}: it is a device, not a file")
+    try:
+        with open(path, "ab"):
+            pass
+    except OSError as exc:
+        raise OutputError(f"{where}: {exc.strerror}") from None
+    st = os.statvfs(path.parent)
+    if path.is_file() and st.f_bavail * st.f_frsize < MIN_FREE_BYTES:     # /proc, a full disk
+        raise OutputError(f"{where}: the disk holding it has only {st.f_bavail * st.f_frsize // 1024} kB "
+                          "free; free some room or choose another disk")
+
+
 class JsonlLog(Output):
-    """One JSON object per frame, flushed as written so a crash loses at most the current line."""
+    """One JSON object per frame, flushed as written so a crash loses at most the current line.
+
+    A write that fails (a full disk) ends the run with the file and the OS error named; what was
+    written stays.
+    """
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
+        probe_file(self.path, "log")
         try:
             self._f = open(self.path, "w", buffering=1)
         except OSError as exc:
-            raise CrawlerError(f"cannot write log {str(self.path)!r}: {exc.strerror}") from None
+            raise OutputError(f"cannot write log {str(self.path)!r}: {exc.strerror}") from None
 
     def write(self, frame, estimate, run):
-        self._f.write(json.dumps(estimate.as_dict()) + "\n")
+        try:
+            self._f.write(json.dumps(estimate.as_dict(), allow_nan=False) + "\n")
+        except OSError as exc:
+            raise OutputError(f"cannot write log {str(self.path)!r}: {exc.strerror}") from None
 
     def close(self):
-        self._f.close()
+        if self._f.closed:
+            return
+        try:
+            self._f.close()
+        except OSError as exc:
+            raise OutputError(f"cannot finish log {str(self.path)!r}: {exc.strerror}") from None
 
 
 class Annotator(Output):
@@ -43,18 +85,21 @@ class Annotator(Output):
 
     def __init__(self, path: str | Path, tracks, fps: float = 30.0):
         import av
+        from fractions import Fraction
 
         self.path = Path(path)
-        if not self.path.parent.is_dir():
-            raise CrawlerError(f"cannot write annotated video {str(self.path)!r}: folder "
-                               f"{str(self.path.parent)!r} does not exist")
+        probe_file(self.path, "annotated video")       # PyAV itself opens the file only at the first packet
         try:
             self._out = av.open(str(self.path), "w")
+            self._stream = self._out.add_stream("libx264", rate=Fraction(fps).limit_denominator(1000))
         except (av.error.FFmpegError, OSError, ValueError) as exc:
-            raise CrawlerError(f"cannot write annotated video {str(self.path)!r}: {exc}") from None
-        self._fps = fps
-        self._stream = None
+            raise OutputError(f"cannot write annotated video {str(self.path)!r}: {_why(exc)}") from None
+        cam = tracks.camera
+        self._stream.width, self._stream.height = cam.width & ~1, cam.height & ~1
+        self._stream.pix_fmt = "yuv420p"
+        self._stream.options = {"crf": "23", "preset": "veryfast"}
         self.tracks = tracks
+        self._closed = False
 
     def write(self, frame, est, run):
         import av
@@ -81,30 +126,35 @@ class Annotator(Output):
             org = (10, 30 + 28 * i)
             cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.8, (0, 0, 0), 4, cv2.LINE_AA)
             cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2, cv2.LINE_AA)
-        if self._stream is None:
-            from fractions import Fraction
-            self._stream = self._out.add_stream("libx264", rate=Fraction(self._fps).limit_denominator(1000))
-            self._stream.width, self._stream.height = img.shape[1] & ~1, img.shape[0] & ~1
-            self._stream.pix_fmt = "yuv420p"
-            self._stream.options = {"crf": "23", "preset": "veryfast"}
         img = img[: self._stream.height, : self._stream.width]
         vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")
         try:
             for packet in self._stream.encode(vf):
                 self._out.mux(packet)
         except (av.error.FFmpegError, OSError) as exc:
-            raise CrawlerError(f"cannot write annotated video {str(self.path)!r}: {exc}") from None
+            raise OutputError(f"cannot write annotated video {str(self.path)!r}: {_why(exc)}") from None
 
     def close(self):
         import av
 
+        if self._closed:
+            return
+        self._closed = True
         try:
-            if self._stream is not None:
-                for packet in self._stream.encode():
-                    self._out.mux(packet)
-            self._out.close()
+            for packet in self._stream.encode():
+                self._out.mux(packet)
         except (av.error.FFmpegError, OSError) as exc:
-            raise CrawlerError(f"cannot finish annotated video {str(self.path)!r}: {exc}") from None
+            raise OutputError(f"cannot finish annotated video {str(self.path)!r}: {_why(exc)}") from None
+        finally:
+            try:
+                self._out.close()
+            except (av.error.FFmpegError, OSError):
+                pass
+
+
+def _why(exc) -> str:
+    """The OS error behind a PyAV error, in words."""
+    return getattr(exc, "strerror", None) or str(exc)
 
 
 class Progress(Output):

@@ -22,7 +22,8 @@ from .checkpoint import Checkpoint, CheckpointOutput
 from .daemon import Daemon
 from .errors import CameraUnavailable
 from .leds import AutoBrightness, BrightnessLoop, Leds, NoLeds
-from .link import CommandQueue, ZenohLink, ZenohOutput
+from .commands import CommandQueue
+from .link import ZenohLink, ZenohOutput
 from .measurement import build_odometer, describe, recording_camera, thesis_roi
 from .outputs import Annotator, JsonlLog, Progress
 from .sdnotify import Notifier, WatchdogOutput
@@ -97,7 +98,16 @@ class Service:
         return self
 
     def __exit__(self, *exc):
-        self._stack.close()
+        """Close everything; a file that cannot be finished (a full disk) is recorded as the run's error
+        instead of hiding the summary."""
+        from .errors import CrawlerError
+
+        try:
+            self._stack.close()
+        except CrawlerError as err:
+            if self.daemon is None or exc[0] is not None:
+                raise
+            self.daemon.stats.error = self.daemon.stats.error or str(err)
 
     def _build(self, stack: ExitStack):
         s = self.settings
@@ -173,7 +183,7 @@ class Service:
         if self.mode is not Mode.REPLAY:
             outs.append(WatchdogOutput(self.hw.notifier or Notifier(), lambda: self.source.description))
         if o.publishes:
-            link = ZenohLink(s.name, s.zenoh.zenoh_config(), on_command=self.commands.submit)
+            link = ZenohLink(s.name, s.zenoh.zenoh_config(), self.commands)
             outs.append(ZenohOutput(link, s.zenoh.publish_hz, s.zenoh.status_hz, clock=self.hw.clock))
         return outs
 

@@ -193,7 +193,7 @@ class ZenohSettings:
         self.zenoh_config()     # zenoh parses the endpoints and the config file: errors now, not mid-run
 
     def zenoh_config(self):
-        from .link import make_zenoh_config
+        from .zenoh_config import make_zenoh_config
 
         return make_zenoh_config(self.mode, self.listen, self.connect, self.config, self.multicast)
 
@@ -201,7 +201,7 @@ class ZenohSettings:
 @dataclass(frozen=True)
 class StateSettings:
     directory: str = _f("/var/lib/crawlerd")
-    checkpoint_s: float = _f(1.0, positive)
+    checkpoint_s: float = _f(0.1, positive)           # 10 Hz: a kill -9 loses at most this much motion
 
     def __post_init__(self):
         _check_fields(self, "state")

@@ -8,7 +8,6 @@ wrong speeds.
 
 from __future__ import annotations
 
-import logging
 import time
 from pathlib import Path
 from typing import Iterator
@@ -19,7 +18,8 @@ from .errors import VideoError
 from .geometry import Camera
 from .ports import Frame
 
-_log = logging.getLogger(__name__)
+RAW_FORMATS = ("h264", "hevc", "mjpeg")          # elementary streams: no timestamps of their own
+IMAGE_FORMATS = ("image2", "png_pipe", "jpeg_pipe", "bmp_pipe", "tiff_pipe", "webp_pipe", "gif")
 
 
 def read_pts(path: str | Path) -> np.ndarray:
@@ -78,6 +78,7 @@ class VideoReplay:
         self._container = None
         self._times = None
         self.packets = None
+        self.frames_total = self.frames_lost = 0
 
     def __enter__(self):
         import av   # PyAV: python3-av on Raspberry Pi OS
@@ -90,9 +91,13 @@ class VideoReplay:
             self._container = av.open(str(self.path))
         except (av.error.FFmpegError, OSError, ValueError) as exc:
             raise VideoError(f"video {str(self.path)!r} cannot be opened: {exc}") from None
+        fmt = self._container.format.name
         if not self._container.streams.video:
             self._container.close()
             raise VideoError(f"{str(self.path)!r} holds no video stream")
+        if fmt in IMAGE_FORMATS or fmt.endswith("_pipe") and fmt not in RAW_FORMATS:
+            self._container.close()
+            raise VideoError(f"{str(self.path)!r} is a still image ({fmt}), not a video recording")
         if self.pts_path is not None:
             self._times = read_pts(self.pts_path)
             self.timing = f"times from {self.pts_path.name}"
@@ -101,7 +106,7 @@ class VideoReplay:
             self.timing = f"times from --fps {self.fps:g}"
         else:
             sidecar = self.path.with_suffix(".pts")
-            if self._container.format.name in ("h264", "hevc", "mjpeg") and sidecar.is_file():
+            if self._container.format.name in RAW_FORMATS and sidecar.is_file():
                 self._times = read_pts(sidecar)
                 self.timing = f"times from {sidecar.name} (found beside the video)"
                 self._check_count(sidecar)
@@ -119,43 +124,76 @@ class VideoReplay:
             self._container = None
 
     def frames(self) -> Iterator[Frame]:
+        first = None
+        last = float("-inf")
+        for k, frame in self._decoded():
+            t = self._time_of(frame, k)
+            if first is None:
+                first = t
+                self._check_size(frame)
+            if t <= last:
+                raise VideoError(f"{self.path.name}: frame {k} time {t:.6f} s does not increase "
+                                 f"({self.timing})")
+            last = t
+            if self.pacer is not None:
+                self.pacer.wait(t - first)
+            yield Frame(k, t - first, _y_plane(frame))
+        self._report_losses()
+
+    def _decoded(self):
+        """(index in the stream, frame) of every frame that decodes; a damaged packet is counted and
+        skipped, not the end of the stream.
+
+        Raw streams carry no timestamps, so each packet is stamped with its index: a frame that comes
+        out then knows its place even when frames before it were lost (exact for the I/P-only streams
+        the Pi's encoder writes; with B-frames, counting is the best there is).
+        """
         import av
 
         stream = self._container.streams.video[0]
         stream.thread_type = "AUTO"
-        first = None
-        last = float("-inf")
-        n = 0
-        try:
-            for frame in self._container.decode(stream):
-                t = self._time_of(frame, n)
-                if first is None:
-                    first = t
-                    self._check_size(frame)
-                if t <= last:
-                    raise VideoError(f"{self.path.name}: frame {n} time {t:.6f} s does not increase "
-                                     f"({self.timing})")
-                last = t
-                if self.pacer is not None:
-                    self.pacer.wait(t - first)
-                yield Frame(n, t - first, _y_plane(frame))
-                n += 1
-        except av.error.FFmpegError as exc:
-            raise VideoError(f"{self.path.name}: stream breaks after frame {n}: {exc}") from None
-        if n == 0:
+        raw = self._container.format.name in RAW_FORMATS
+        sent = out = failed = 0
+        reorders = False            # B-frames: frames leave the decoder out of packet order
+        prev = -1
+        for packet in self._container.demux(stream):
+            if packet.size:
+                if raw:
+                    packet.pts = packet.dts = sent
+                sent += 1
+            try:
+                decoded = packet.decode()
+            except av.error.FFmpegError:
+                failed += 1
+                if sent >= 10 and failed > sent // 2:
+                    raise VideoError(f"{self.path.name}: {failed} of the first {sent} frames do not decode; "
+                                     "is it a video recording (H.264, MP4, MKV)?") from None
+                continue
+            for frame in decoded:
+                reorders = reorders or frame.pict_type == av.video.frame.PictureType.B
+                if raw and not reorders:
+                    if frame.pts <= prev:       # a damaged stream repeated a picture: not a new frame
+                        continue
+                    k = prev = frame.pts
+                else:
+                    k = out
+                yield k, frame
+                out += 1
+        self.frames_total, self.frames_lost = max(sent, out), max(sent, out) - out
+        if out == 0:
             raise VideoError(f"video {str(self.path)!r} holds no decodable frames")
-        lost = (self.packets or n) - n
-        if self._times is not None and lost > 1:
-            # frames that did not decode leave no trace: every later frame took an earlier one's time
-            raise VideoError(f"{self.path.name}: {lost} of {self.packets} frames could not be decoded, so "
-                             "the pts times after the first of them cannot be matched to frames; the "
-                             "distance is reported up to the end, speeds after that point are suspect")
-        if self._times is not None and len(self._times) > n:
-            msg = (f"pts file has {len(self._times)} timestamps but the video has {n} frames; the extra "
+
+    def _report_losses(self):
+        lost, total = self.frames_lost, self.frames_total
+        if lost:
+            msg = (f"{lost} of {total} frames could not be decoded (a damaged recording); the odometry "
+                   "measured or bridged across them")
+            self.warnings.append(msg)
+        if self._times is not None and len(self._times) > total:
+            msg = (f"pts file has {len(self._times)} timestamps but the video has {total} frames; the extra "
                    "timestamps were ignored. If the recording lost frames inside rather than at its end, "
                    "the times (and speeds) after the gap are wrong; the distance is not affected")
             self.warnings.append(msg)
-            _log.warning(msg)
 
     def _check_count(self, pts_path):
         """A pts file belongs to a recording frame for frame: count the stream's frames first.
@@ -183,7 +221,7 @@ class VideoReplay:
             return float(self._times[n])
         if self.fps is not None:
             return n / self.fps
-        if frame.time is None:
+        if frame.time is None or self._container.format.name in RAW_FORMATS:
             raise VideoError(f"{self.path.name} is a raw stream without frame times; pass --pts FILE "
                              "(from rpicam-vid --save-pts or picamera2's pts=) or --fps N")
         return float(frame.time)

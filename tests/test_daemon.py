@@ -106,26 +106,26 @@ def test_distance_on_the_topic_matches_the_simulator(tmp_path, zenoh_pair, opera
     assert saved["distance_m"] == pytest.approx(last["distance_m"], abs=1e-6)
 
 
-def test_control_reset_led_and_malformed_requests(tmp_path, zenoh_pair, operator):
+def test_commands_reset_led_and_malformed_requests(tmp_path, zenoh_pair, operator):
     rig = Rig(tmp_path, zenoh_pair, speed=0.3).start()
     try:
-        assert wait_for(lambda: ask(operator, "crawler/crawler1/control?cmd=status")[0] == "ok", timeout=15)
-        run_id = ask(operator, "crawler/crawler1/control?cmd=status")[1]["run_id"]
+        assert wait_for(lambda: ask(operator, "crawler/crawler1/status")[0] == "ok", timeout=15)
+        run_id = ask(operator, "crawler/crawler1/status")[1]["run_id"]
         assert wait_for(lambda: rig.daemon.distance_m > 0.05, timeout=15)
-        kind, body = ask(operator, "crawler/crawler1/control?cmd=reset")
+        kind, body = ask(operator, "crawler/crawler1/cmd/reset")
         assert kind == "ok" and body["distance_m"] == 0.0
         assert rig.daemon.distance_m < 0.02
         assert body["run_id"] != run_id
-        kind, body = ask(operator, "crawler/crawler1/control", json.dumps({"cmd": "led", "level": 0.3}))
+        kind, body = ask(operator, "crawler/crawler1/cmd/led", json.dumps({"level": 0.3}))
         assert kind == "ok" and rig.led_states() == [0.3, 0.3]
-        for bad in ("?cmd=led;level=7", "?cmd=led;level=bright", "?cmd=explode", ""):
-            kind, body = ask(operator, "crawler/crawler1/control" + bad)
+        for bad in ("/cmd/led?level=7", "/cmd/led?level=bright", "/cmd/explode", "/cmd/led"):
+            kind, body = ask(operator, "crawler/crawler1" + bad)
             assert kind == "err" and body["error"], bad
-        kind, body = ask(operator, "crawler/crawler1/control", "not json")
+        kind, body = ask(operator, "crawler/crawler1/cmd/led", "not json")
         assert kind == "err" and "not JSON" in body["error"]
         time.sleep(0.3)
         assert rig.thread.is_alive()                              # nothing reached the loop
-        kind, body = ask(operator, "crawler/crawler1/control?cmd=status")
+        kind, body = ask(operator, "crawler/crawler1/status")
         assert kind == "ok" and body["led_level"] == 0.3 and body["sim_true_distance_m"] >= 0
     finally:
         rig.finish()

@@ -2,11 +2,13 @@
 
 import json
 import threading
+import time
 
 import pytest
 
 from conftest import wait_for
-from crawler.link import CommandQueue, ZenohLink, make_zenoh_config
+from crawler.commands import CommandQueue, CommandRefused, number
+from crawler.link import ZenohLink, make_zenoh_config
 from crawler.errors import BadConfig
 
 
@@ -20,53 +22,92 @@ def query(session, selector, payload=None, timeout=3.0):
     return out
 
 
+class Loop:
+    """Stands in for the frame loop: drains the command queue every 10 ms."""
+
+    def __init__(self, commands):
+        self.commands, self.handled, self._stop = commands, [], threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self):
+        while not self._stop.wait(0.01):
+            self.commands.drain(self.handle)
+
+    def handle(self, req):
+        self.handled.append(req)
+        if req["cmd"] == "boom":
+            raise CommandRefused("unknown command 'boom'")
+        return {"cmd": req["cmd"], **({"level": number(req, "level", 0, 1)} if req["cmd"] == "led" else {})}
+
+    def stop(self):
+        self._stop.set()
+
+
 @pytest.fixture
 def link(zenoh_pair):
-    handled = []
-
-    def on_command(req):
-        handled.append(req)
-        if req["cmd"] == "boom":
-            raise ValueError("unknown cmd 'boom'")
-        return {"cmd": req["cmd"]}
-
-    lk = ZenohLink("c1", make_zenoh_config("peer", listen=zenoh_pair["listen"], multicast=False), on_command)
+    commands = CommandQueue()
+    lk = ZenohLink("c1", make_zenoh_config("peer", listen=zenoh_pair["listen"], multicast=False), commands)
     lk.open()
-    lk.handled = handled
+    lk.loop = Loop(commands)
     try:
         yield lk
     finally:
+        lk.loop.stop()
         lk.close()
 
 
-def test_topics_liveliness_and_control(link, operator):
-    got, alive = [], []
-    operator.declare_subscriber("crawler/*/distance", lambda s: got.append(json.loads(s.payload.to_string())))
+def test_topics_liveliness_status_and_commands(link, operator):
+    got, alive, encodings = [], [], []
+
+    def on_distance(s):
+        got.append(json.loads(s.payload.to_string()))
+        encodings.append(str(s.encoding))
+
+    operator.declare_subscriber("crawler/*/distance", on_distance)
     operator.liveliness().declare_subscriber("crawler/*/alive", lambda s: alive.append(str(s.kind)), history=True)
     assert wait_for(lambda: alive == ["SampleKind.PUT"])
-    assert wait_for(lambda: query(operator, "crawler/c1/control?cmd=status", timeout=0.5) != [])
+    assert wait_for(lambda: query(operator, "crawler/c1/status", timeout=0.5) != [])
     for i in range(5):
-        link.publish_estimate({"t_s": i / 30, "distance_m": 0.01 * i, "speed_m_s": 0.3, "quality": 1.0,
+        link.publish_estimate({"t_s": i / 30, "distance_m": 0.01 * i, "speed_m_s": float("nan"), "quality": 1.0,
                                "tracking": True})
         if i == 0:
             wait_for(lambda: got, timeout=3)
     assert wait_for(lambda: len(got) >= 4)
     assert got[-1]["seq"] == 5 and got[-1]["distance_m"] == pytest.approx(0.04)
+    assert got[-1]["speed_m_s"] is None                   # NaN is not JSON: published as null
+    assert set(encodings) == {"application/json"}
 
-    assert query(operator, "crawler/c1/control?cmd=reset") == [("ok", {"cmd": "reset", "ok": True})]
-    assert query(operator, "crawler/c1/control", payload=json.dumps({"cmd": "led", "level": 0.5})) == [
-        ("ok", {"cmd": "led", "ok": True})]
-    kind, body = query(operator, "crawler/c1/control?cmd=boom")[0]
-    assert kind == "err" and "unknown cmd" in body["error"]
-    kind, body = query(operator, "crawler/c1/control")[0]
-    assert kind == "err" and "missing cmd" in body["error"]
-    kind, body = query(operator, "crawler/c1/control", payload="{not json")[0]
-    assert kind == "err" and "not JSON" in body["error"]
-    kind, body = query(operator, "crawler/c1/control", payload="[1, 2]")[0]
-    assert kind == "err" and "JSON object" in body["error"]
-
+    assert query(operator, "crawler/c1/status") == [("ok", {"cmd": "status", "ok": True})]
+    assert query(operator, "crawler/c1/cmd/reset") == [("ok", {"cmd": "reset", "ok": True})]
+    assert query(operator, "crawler/c1/cmd/led?level=0.5") == [("ok", {"cmd": "led", "level": 0.5, "ok": True})]
+    assert query(operator, "crawler/c1/cmd/led", payload=json.dumps({"level": 0.25})) == [
+        ("ok", {"cmd": "led", "level": 0.25, "ok": True})]
+    for selector, payload, words in [
+            ("crawler/c1/cmd/boom", None, "unknown command"),
+            ("crawler/c1/cmd/led", json.dumps({"level": True}), "not true/false"),
+            ("crawler/c1/cmd/led?level=abc", None, "must be a number"),
+            ("crawler/c1/cmd/led?level=NaN", None, "between 0 and 1"),
+            ("crawler/c1/cmd/led?level=2", None, "between 0 and 1"),
+            ("crawler/c1/cmd/led", "{not json", "not JSON"),
+            ("crawler/c1/cmd/led", "[1, 2]", "JSON object")]:
+        kind, body = query(operator, selector, payload=payload)[0]
+        assert kind == "err" and words in body["error"], (selector, body)
     link.close()
     assert wait_for(lambda: alive[-1:] == ["SampleKind.DELETE"])
+
+
+def test_every_query_ends_with_its_reply_at_once(link, operator):
+    """Refused or answered, the asker's get() returns well before its timeout (3 s here)."""
+    assert wait_for(lambda: query(operator, "crawler/c1/status", timeout=0.5) != [])
+    slowest = 0.0
+    for selector in ["crawler/c1/cmd/boom", "crawler/c1/cmd/led?level=2", "crawler/c1/cmd/led?level=0.4",
+                     "crawler/c1/status", "crawler/c1/cmd/reset"] * 4:
+        t0 = time.monotonic()
+        replies = query(operator, selector, timeout=3.0)
+        slowest = max(slowest, time.monotonic() - t0)
+        assert len(replies) == 1, selector
+    assert slowest < 0.25, slowest          # ~one loop period; never the 3 s timeout
 
 
 def test_unopenable_session_keeps_measuring_and_retries(zenoh_pair):
@@ -110,8 +151,9 @@ def test_command_queue_hands_requests_to_the_loop_and_times_out():
     t.join(2)
     assert result["r"] == {"answer": "status"}
     slow = CommandQueue(timeout_s=0.1)
-    with pytest.raises(RuntimeError, match="busy"):
+    with pytest.raises(TimeoutError, match="busy"):
         slow.submit({"cmd": "reset"})
+    assert not slow._items                       # a request the caller gave up on never runs later
 
 
 def test_publishing_resumes_when_the_operator_comes_back(link, zenoh_pair):

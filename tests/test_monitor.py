@@ -211,6 +211,16 @@ def test_bad_arguments_are_one_line_and_exit_2(tmp_path, capsys, argv, message):
 
 # -- on the network ---------------------------------------------------------------------------------
 
+class Direct:
+    """The daemon's command queue, answered at once (no frame loop here)."""
+
+    def __init__(self, handle):
+        self.handle = handle
+
+    def submit(self, request, timeout_s=None):
+        return self.handle(request)
+
+
 class FakeDaemons:
     """Two crawlers, each a ZenohLink listening on its own loopback port; `handled` logs commands."""
 
@@ -222,7 +232,7 @@ class FakeDaemons:
         self.links = {}
         for name, port in zip(("c1", "c2"), self.ports):
             conf = make_zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"], multicast=False)
-            self.links[name] = ZenohLink(name, conf, on_command=self._handler(name)).open()
+            self.links[name] = ZenohLink(name, conf, commands=Direct(self._handler(name))).open()
         self.flags = ["--no-multicast"] + [f"--connect=tcp/127.0.0.1:{p}" for p in self.ports]
         self.published = {"c1": [], "c2": []}
         self._stop = threading.Event()

@@ -51,9 +51,9 @@ def test_brightness_loop_converges_and_stays_in_bounds():
 def test_checkpoint_round_trip_atomic_and_corrupt(tmp_path):
     cp = Checkpoint(tmp_path)
     assert cp.load() is None
-    cp.save({"distance_m": 12.5, "frames": 3, "run_id": "abc"})
+    cp.save({"distance_m": 12.5, "frames": 3, "run_id": "abc123"})
     data = Checkpoint(tmp_path).load()
-    assert data["distance_m"] == 12.5 and data["run_id"] == "abc"
+    assert data["distance_m"] == 12.5 and data["run_id"] == "abc123"
     assert not list(tmp_path.glob("*.tmp"))
     (tmp_path / "checkpoint.json").write_text("{half")
     assert Checkpoint(tmp_path).load() is None
@@ -64,7 +64,7 @@ def test_checkpoint_output_saves_every_interval_on_reset_and_at_stop(tmp_path):
         distance_m = 0.0
 
         def state(self):
-            return {"distance_m": self.distance_m, "run_id": "r1"}
+            return {"distance_m": self.distance_m, "run_id": "0123ab"}
 
     now, run = [0.0], Run()
     out = CheckpointOutput(Checkpoint(tmp_path), every_s=10.0, clock=lambda: now[0])

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import BadConfig, CrawlerError, fail
-from ..link import ZENOH_MODES
+from ..zenoh_flags import ZENOH_MODES
 from .fleet import SILENT_AFTER_S, Event, FleetState
 from .net import NAME_RE, DaemonError, Feed, NoAnswer, control, open_session
 from .record import RecordError, RecordWriter, read_records
@@ -129,7 +129,7 @@ def build_parser() -> argparse.ArgumentParser:
     for cmd, text in (("reset", "distance to 0, new run"), ("led", "set the LED level"),
                       ("status", "print the daemon's status")):
         c = sub.add_parser(cmd, help=text, description=f"{text[0].upper()}{text[1:]} through "
-                           f"crawler/NAME/control?cmd={cmd}.")
+                           f"crawler/NAME/{'status' if cmd == 'status' else 'cmd/' + cmd}.")
         c.add_argument("name", metavar="NAME", type=_crawler_name(cmd == "status"),
                        help="the crawler's name" + (" (* asks every crawler)" if cmd == "status" else ""))
         if cmd == "led":
@@ -339,7 +339,7 @@ def cmd_control(args) -> int:
         session.close()
     if not replies:
         who = "no crawler" if args.name == "*" else f"no crawler named {args.name!r}"
-        raise NoAnswer(f"{who} answered {args.command} within {args.timeout:g} s on crawler/{args.name}/control "
+        raise NoAnswer(f"{who} answered {args.command} within {args.timeout:g} s on crawler/{args.name}/{'status' if args.command == 'status' else 'cmd/' + args.command} "
                        "(is crawlerd running, and can this laptop reach it? try --connect tcp/IP:7447)")
     errors = []
     indent = 2 if sys.stdout.isatty() else None

@@ -105,8 +105,10 @@ def control(session, name: str, request: dict, timeout_s: float) -> list[tuple[s
     """
     import zenoh
 
-    params = ";".join(f"{k}={v}" for k, v in request.items())
-    selector = f"crawler/{name}/control?{params}"
+    args = {k: v for k, v in request.items() if k != "cmd"}
+    params = ";".join(f"{k}={v}" for k, v in args.items())
+    key = "status" if request["cmd"] == "status" else f"cmd/{request['cmd']}"
+    selector = f"crawler/{name}/{key}" + (f"?{params}" if params else "")
     deadline = time.monotonic() + timeout_s
     while True:
         remaining = deadline - time.monotonic()
