@@ -1,8 +1,11 @@
 """LEDs on gpiozero's mock pins, the checkpoint file, and the systemd notify protocol."""
 
 import socket
+import time
 
 import pytest
+
+from conftest import wait_for
 from gpiozero.pins.mock import MockFactory, MockPWMPin
 
 from crawler.checkpoint import Checkpoint, CheckpointOutput
@@ -59,25 +62,32 @@ def test_checkpoint_round_trip_atomic_and_corrupt(tmp_path):
     assert Checkpoint(tmp_path).load() is None
 
 
-def test_checkpoint_output_saves_every_interval_on_reset_and_at_stop(tmp_path):
+def test_checkpoint_output_saves_off_the_loop_every_interval_on_reset_and_at_stop(tmp_path):
     class Run:
         distance_m = 0.0
 
         def state(self):
             return {"distance_m": self.distance_m, "run_id": "0123ab"}
 
+    def saved():
+        data = Checkpoint(tmp_path).load()
+        return data and data["distance_m"]
+
     now, run = [0.0], Run()
     out = CheckpointOutput(Checkpoint(tmp_path), every_s=10.0, clock=lambda: now[0])
-    out.write(None, None, run)                 # the first frame is saved at once
+    out.write(None, None, run)                 # the first frame is handed over at once
+    assert wait_for(lambda: saved() == 0.0, timeout=5)
     run.distance_m = 1.0
     now[0] = 5.0
-    out.write(None, None, run)                 # within every_s: not written
-    assert Checkpoint(tmp_path).load()["distance_m"] == 0.0
+    out.write(None, None, run)                 # within every_s: not handed over
+    time.sleep(0.2)
+    assert saved() == 0.0
     out.reset(run)
-    assert Checkpoint(tmp_path).load()["distance_m"] == 1.0
+    assert wait_for(lambda: saved() == 1.0, timeout=5)
     run.distance_m = 2.0
-    out.stop(run)
-    assert Checkpoint(tmp_path).load()["distance_m"] == 2.0
+    out.stop(run)                              # the last word is written before stop() returns
+    assert saved() == 2.0
+    out.close()
 
 
 def test_notifier_sends_ready_watchdog_stopping(tmp_path):
