@@ -137,16 +137,16 @@ def run_options(args):
                       sim=sim)
 
 
-def run(settings, options, hardware=None) -> int:
-    """Build, run and report one run; the exit code. Signals stop it cleanly, even during start-up."""
+def run(settings, options, hardware=None, stop=None) -> int:
+    """Build, run and report one run; the exit code. A stop signal ends it cleanly, even one that
+    arrived during start-up (then no frame is measured, the checkpoint is kept, the exit is 0)."""
     from .service import Service
-    from .signals import StopSignals
 
-    with StopSignals() as stop:
-        with Service(settings, options, hardware, stop=lambda: bool(stop)) as svc:
-            stats = svc.run()
-        summary = svc.summary()         # after closing: a file that could not be finished is in it
-        stopped = bool(stop)
+    stop = stop if stop is not None else []
+    with Service(settings, options, hardware, stop=lambda: bool(stop)) as svc:
+        stats = svc.run()
+    summary = svc.summary()             # after closing: a file that could not be finished is in it
+    stopped = bool(stop)
     if stats.frames == 0 and not stats.error and not stopped:
         stats.error = summary["error"] = "no frames were processed"
     elif stats.frames and not stats.tracked and not stats.error:
@@ -163,22 +163,25 @@ def run(settings, options, hardware=None) -> int:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
-                        format=f"{PROG}: %(levelname)s: %(message)s")
-    try:
-        settings = load_settings(args)
-        options = run_options(args)
-        if args.check_config:
-            from .service import check_config
+    from .signals import StopSignals
 
-            print(json.dumps(check_config(settings, options), indent=2))
-            return 0
-        return run(settings, options)
-    except CrawlerError as exc:
-        return fail(PROG, exc, 2)
-    except KeyboardInterrupt:
-        return 130
+    with StopSignals() as stop:          # first: a SIGTERM during start-up is a clean stop too
+        args = build_parser().parse_args(argv)
+        logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                            format=f"{PROG}: %(levelname)s: %(message)s")
+        try:
+            settings = load_settings(args)
+            options = run_options(args)
+            if args.check_config:
+                from .service import check_config
+
+                print(json.dumps(check_config(settings, options), indent=2))
+                return 0
+            return run(settings, options, stop=stop)
+        except CrawlerError as exc:
+            return fail(PROG, exc, 2)
+        except KeyboardInterrupt:
+            return 130
 
 
 if __name__ == "__main__":

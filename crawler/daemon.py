@@ -72,6 +72,7 @@ class Daemon:
             "uptime_s": round(self.clock() - self.started, 3),
             "last_error": self.last_error,
             "run_id": self.run_id,
+            "loop_ms": self.stats.loop.as_dict(),
         }
         info = self.source.info()
         if info:
@@ -121,6 +122,8 @@ class Daemon:
         self.leds.on()
         try:
             for frame in self.source.frames():
+                if self.stop():                   # a stop signal during start-up: no frame at all
+                    break
                 self._step(frame)
                 if self.stop() or (self.max_frames and self.stats.frames >= self.max_frames):
                     break
@@ -134,6 +137,7 @@ class Daemon:
         return self.stats
 
     def _step(self, frame):
+        t0 = time.perf_counter()
         est = self.odometer.update(frame.gray, frame.t_s)
         self._last_est = est
         self.stats.add(est)
@@ -143,6 +147,7 @@ class Daemon:
         self.commands.drain(self.handle)
         for output in self.outputs:
             output.write(frame, est, self)
+        self.stats.loop.add((time.perf_counter() - t0) * 1000.0)
 
     def _last_words(self):
         """Every output's stop(), even when one of them fails: the checkpoint must not wait on the net."""

@@ -210,7 +210,8 @@ def test_sigterm_exits_cleanly_and_a_killed_daemon_resumes(tmp_path):
         proc.communicate(timeout=30)
         killed_at = dist[-1]["distance_m"]
         saved = json.loads((tmp_path / "state" / "checkpoint.json").read_text())
-        assert killed_at - 0.35 <= saved["distance_m"] <= killed_at      # at most ~1 s behind
+        # written at 10 Hz off the loop: a kill loses at most ~0.1 s of motion (0.03 m at 0.3 m/s)
+        assert killed_at - 0.06 <= saved["distance_m"] <= killed_at + 0.02
 
         dist.clear()
         proc = start_crawlerd(tmp_path, port, "--max-frames", "30")
@@ -274,3 +275,75 @@ def test_auto_brightness_dims_the_leds_toward_the_target(tmp_path, zenoh_pair):
     rig.finish()
     assert levels[0] < 0.8 and levels[-1] == pytest.approx(0.05)
     assert all(b <= a + 1e-12 for a, b in zip(levels, levels[1:]))        # monotonic dimming
+
+
+@pytest.mark.parametrize("signum,after_s", [(signal.SIGTERM, 0.4), (signal.SIGHUP, None)])
+def test_sigterm_during_start_up_and_sighup_stop_cleanly(tmp_path, signum, after_s):
+    """systemd may stop the unit while it starts; a closed terminal sends SIGHUP: both are clean stops."""
+    port = free_port()
+    proc = start_crawlerd(tmp_path, port, "--no-publish")
+    if after_s is None:                                   # mid-run: once the checkpoint is being written
+        assert wait_for(lambda: (tmp_path / "state" / "checkpoint.json").exists(), timeout=60)
+    else:
+        time.sleep(after_s)                               # still importing / opening the camera
+    proc.send_signal(signum)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert "error" not in summary and "Traceback" not in err
+    saved = json.loads((tmp_path / "state" / "checkpoint.json").read_text())
+    assert saved["distance_m"] == pytest.approx(summary["distance_m"], abs=1e-6)
+
+
+def strict(text):
+    """json.loads that refuses NaN/Infinity, as any JSON parser but Python's would."""
+    def bad(word):
+        raise ValueError(f"{word} is not JSON")
+    return json.loads(text, parse_constant=bad)
+
+
+def test_a_poisoned_checkpoint_is_set_aside_reported_and_reset_recovers(tmp_path):
+    import zenoh
+
+    from crawler.link import make_zenoh_config
+
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "checkpoint.json").write_text('{"distance_m": NaN, "run_id": "abc123def456", "frames": 9}')
+    port = free_port()
+    dist = []
+    operator = zenoh.open(make_zenoh_config("peer", connect=[f"tcp/127.0.0.1:{port}"], multicast=False))
+    operator.declare_subscriber("crawler/crawler1/distance", lambda s: dist.append(strict(s.payload.to_string())))
+    proc = start_crawlerd(tmp_path, port)
+    try:
+        assert wait_for(lambda: len(dist) > 10, timeout=60)
+        assert all(isinstance(d["distance_m"], float) and d["distance_m"] < 1.0 for d in dist)  # from 0, finite
+        kind, status = ask(operator, "crawler/crawler1/status")
+        assert kind == "ok" and "corrupt" in status["last_error"] and "kept as checkpoint.corrupt-" in status["last_error"]
+        aside = list(state.glob("checkpoint.corrupt-*.json"))
+        assert len(aside) == 1 and "NaN" in aside[0].read_text()          # kept beside the good one
+        assert strict((state / "checkpoint.json").read_text())["run_id"] != "abc123def456"
+        kind, body = ask(operator, "crawler/crawler1/cmd/reset")
+        assert kind == "ok" and body["distance_m"] == 0.0
+        kind, status = ask(operator, "crawler/crawler1/status")
+        assert status["last_error"] is None and status["checkpoint"]["error"] is None
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=30)
+        operator.close()
+    assert proc.returncode == 0 and "corrupt" in err                     # and once in the log
+
+
+def test_an_unwritable_state_directory_is_in_the_status(tmp_path, zenoh_pair, operator):
+    (tmp_path / "afile").write_text("not a folder")
+    rig = Rig(tmp_path, zenoh_pair, extra=[f"state.directory={json.dumps(str(tmp_path / 'afile' / 'state'))}"])
+    rig.start()
+    try:
+        assert wait_for(lambda: ask(operator, "crawler/crawler1/status")[0] == "ok", timeout=15)
+        assert wait_for(lambda: (ask(operator, "crawler/crawler1/status")[1]["checkpoint"]["error"] or "")
+                        .startswith("cannot write checkpoint"), timeout=10)
+        status = ask(operator, "crawler/crawler1/status")[1]
+        assert "Not a directory" in status["last_error"]
+        assert rig.thread.is_alive()                                  # measuring goes on
+    finally:
+        rig.finish()
