@@ -9,7 +9,7 @@ SAMPLE  = samples/demo
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e '.[pc,test]'
 	touch $@
 
 venv: $(VENV)/.installed

@@ -13,6 +13,7 @@ python3-picamera2). The camera class is injectable, so `--sim` and tests pass hw
 from __future__ import annotations
 
 import logging
+import re
 from dataclasses import dataclass, replace
 
 from .calibration import load_calibration
@@ -35,7 +36,14 @@ SENSOR_FOV_DEG = {
     "imx708_wide": (102.0, 67.0), "imx708_wide_noir": (102.0, 67.0),
 }
 # Minimum vertical blanking lines of each sensor's driver: line time = 1 / (fps_max * (rows + vblank)).
-SENSOR_VBLANK_MIN = {"ov5647": 24, "imx219": 32, "imx708": 40}
+# The IMX708 driver's differs per mode: 58 lines at full resolution, 40 in the binned modes.
+SENSOR_VBLANK_MIN = {"ov5647": 24, "imx219": 32, "imx708": {(4608, 2592): 58, None: 40}}
+
+
+def vblank_lines(model: str, mode_size) -> int:
+    """The driver's minimum vertical blanking of `model` in the mode of `mode_size` (0 if unknown)."""
+    v = SENSOR_VBLANK_MIN.get(model.split("_")[0], 0)
+    return v.get(tuple(mode_size), v[None]) if isinstance(v, dict) else v
 
 
 class CameraStalled(CrawlerError, TimeoutError):
@@ -98,7 +106,7 @@ def _contains(outer, inner) -> bool:
 
 
 def plan_window(modes: list[dict], active_size, window, output_size, fps: float,
-                lens, vblank_lines: int = 0, line_time_s: float | None = None,
+                lens, vblank=0,
                 hflip: bool = False, vflip: bool = False) -> WindowPlan:
     """Choose the sensor mode and ScalerCrop for a window of the active array.
 
@@ -132,8 +140,8 @@ def plan_window(modes: list[dict], active_size, window, output_size, fps: float,
     if use_fps < fps:
         _log.warning("[camera] fps = %g exceeds the %s mode's %.1f fps; running at %.1f",
                      fps, mode["size"], mode["fps"], use_fps)
-    if line_time_s is None:
-        line_time_s = 1.0 / (mode["fps"] * (mode["size"][1] + vblank_lines))
+    blank = vblank(tuple(mode["size"])) if callable(vblank) else vblank    # lines, or size -> lines
+    line_time_s = 1.0 / (mode["fps"] * (mode["size"][1] + blank))
     return plan_for_mode(mode, snap_to_mode((x, y, w, h), mode), active_size, output_size, use_fps,
                          lens, line_time_s, hflip, vflip)
 
@@ -171,13 +179,37 @@ def plan_for_mode(mode, window, active_size, output_size, fps, lens, line_time_s
                       top_row_s=(y - mode["crop_limits"][1]) * rows_per_native * line_time_s)
 
 
+PICAMERA2_MIN = (0, 3, 20)      # older ones block forever in capture_request(wait=...)
+
+
 def import_picamera2():
-    """The real Picamera2 and MappedArray classes, or CameraUnavailable with the install recipe."""
+    """The real Picamera2 and MappedArray classes, or CameraUnavailable saying why and what to do."""
     try:
         from picamera2 import MappedArray, Picamera2
-    except ImportError:
-        raise CameraUnavailable(INSTALL_HINT) from None
+    except ImportError as exc:
+        if exc.name == "picamera2":
+            raise CameraUnavailable(INSTALL_HINT) from None
+        raise CameraUnavailable(f"picamera2 is installed but cannot be imported ({type(exc).__name__}: {exc}); "
+                                "a venv that shadows apt's numpy or OpenCV is the usual cause: see "
+                                "docs/deploy.md") from None
+    _check_picamera2_version()
     return Picamera2, MappedArray
+
+
+def _check_picamera2_version():
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        text = version("picamera2")
+    except PackageNotFoundError:
+        _log.warning("picamera2's version is unknown; crawlerd needs %s or newer",
+                     ".".join(map(str, PICAMERA2_MIN)))
+        return
+    have = tuple(int(p) for p in re.findall(r"\d+", text)[:3])
+    if have < PICAMERA2_MIN:
+        raise CameraUnavailable(f"picamera2 {text} is too old: before {'.'.join(map(str, PICAMERA2_MIN))} "
+                                "capture_request(wait=...) can block forever on a stalled camera; "
+                                "run 'sudo apt update && sudo apt install python3-picamera2'")
 
 
 class Picamera2Source:
@@ -260,11 +292,10 @@ class Picamera2Source:
             raise BadConfig(f"camera model {self.model!r} has no known field of view; set [camera] "
                             "sensor_hfov_deg and sensor_vfov_deg (or a calibration file)")
         modes = cam.sensor_modes            # reconfigures the camera: read before configure()
-        base_model = self.model.split("_")[0]
         self._active_size, self._fov = active_size, fov
         self.plan = self._with_readout(plan_window(
             modes, active_size, c.sensor_window, self.output_size, c.fps, fov,
-            SENSOR_VBLANK_MIN.get(base_model, 0), hflip=c.hflip, vflip=c.vflip))
+            lambda size: vblank_lines(self.model, size), hflip=c.hflip, vflip=c.vflip))
         p = self.plan
         d = p.frame_duration_us
         controls = {"FrameDurationLimits": (d, d), "ExposureTime": c.exposure_us,

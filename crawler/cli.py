@@ -24,7 +24,7 @@ import sys
 from pathlib import Path
 
 from . import __version__
-from .errors import CrawlerError, fail
+from .errors import CrawlerError, fail, missing_module
 from .zenoh_flags import add_zenoh_flags, zenoh_values
 
 PROG = "crawlerd"
@@ -180,6 +180,8 @@ def main(argv=None) -> int:
             return run(settings, options, stop=stop)
         except CrawlerError as exc:
             return fail(PROG, exc, 2)
+        except ModuleNotFoundError as exc:
+            return fail(PROG, CrawlerError(missing_module(exc)), 2)
         except KeyboardInterrupt:
             return 130
 

@@ -25,6 +25,28 @@ class CameraUnavailable(CrawlerError, RuntimeError):
     """The CSI camera (or picamera2 itself) cannot be opened."""
 
 
+# a module crawlerd needs -> (its Raspberry Pi OS package, what to do on a PC)
+PACKAGES = {
+    "numpy": ("python3-numpy", "pip install 'crawlerd[pc]'"),
+    "cv2": ("python3-opencv", "pip install 'crawlerd[pc]'"),
+    "av": ("python3-av", "pip install 'crawlerd[pc]'"),
+    "gpiozero": ("python3-gpiozero", "pip install gpiozero"),
+    "zenoh": (None, "pip install 'eclipse-zenoh>=1.0'"),
+    "evdev": ("python3-evdev", "pip install evdev"),
+}
+
+
+def missing_module(exc: ModuleNotFoundError) -> str:
+    """What to install for a module that is not there, in one line."""
+    top = (exc.name or "").split(".")[0]
+    apt, pc = PACKAGES.get(top, (None, None))
+    if apt is None and pc is None:
+        return f"Python module {top!r} is missing ({exc})"
+    pi = (f"on the Raspberry Pi run 'sudo apt install {apt}' and make the venv with "
+          "'python3 -m venv --system-site-packages'" if apt else f"on the Raspberry Pi run '{pc}' in the venv")
+    return f"Python module {top!r} is missing: {pi}; on a PC run \"{pc}\" (docs/deploy.md)"
+
+
 def fail(prog: str, exc: BaseException, code: int) -> int:
     """Tell the operator in one line (`prog: error: ...`) and return the exit code.
 

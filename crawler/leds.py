@@ -2,6 +2,13 @@
 
 The pin factory is injected (gpiozero's `pin_factory=`): lgpio on the Pi, MockFactory in tests and
 `--sim`. gpiozero is imported only when LEDs are built.
+
+lgpio's PWM is timed in software. A camera exposure that is not a whole number of PWM periods
+catches a varying number of "on" slices from row to row and frame to frame: at 1 kHz and 80 %, a
+1.5 ms exposure sees the light vary by about +-8 % in bands that move every frame, texture the
+odometry would track. `pwm_exposure_us` makes the exposure a whole number of periods; at full level
+(brightness 1.0) the pin is steadily on and any exposure is fine. After close, lgpio leaves the pins
+as floating inputs: the drivers' PWM inputs need a pull-down (docs/deploy.md) to stay dark then.
 """
 
 from __future__ import annotations
@@ -29,15 +36,17 @@ class Leds:
         self.brightness = float(brightness)
         self._lock = threading.Lock()
         self._leds = []
-        try:
-            for pin in pins:
+        for pin in pins:
+            try:
                 self._leds.append(PWMLED(pin, active_high=active_high, initial_value=0,
                                          frequency=frequency_hz, pin_factory=pin_factory))
-        except GPIOZeroError as exc:
-            self.close()
-            raise CrawlerError(
-                f"LED pin {pin!r} cannot be driven: {exc}; check [leds] pins, that the user is in the "
-                "'gpio' group, and that the pins support PWM (use --sim off the Pi)") from None
+            except Exception as exc:        # gpiozero's own errors, and lgpio's (pin busy, frequency)
+                self.close()
+                kind = "gpiozero" if isinstance(exc, GPIOZeroError) else type(exc).__name__
+                raise CrawlerError(
+                    f"LED pin {pin!r} cannot be driven ({kind}: {exc}); check [leds] pins (BCM numbers), "
+                    "that no other program holds the pin, that the user is in the 'gpio' group and "
+                    "[leds] frequency_hz (use --sim off the Pi)") from None
         self.level = 0.0
 
     def __enter__(self):
@@ -65,12 +74,20 @@ class Leds:
         with self._lock:
             for led in self._leds:
                 try:
-                    led.value = 0
+                    led.value = 0           # driven low before the pin is released
                     led.close()
                 except Exception:   # closing must never mask the error that got us here
                     _log.debug("closing LED failed", exc_info=True)
             self._leds = []
             self.level = 0.0
+
+
+def pwm_exposure_us(exposure_us: int, frequency_hz: float) -> int:
+    """The exposure nearest `exposure_us` that is a whole number (>= 1) of PWM periods, so every
+    row integrates the same light whatever the phase (ties round down: less motion blur)."""
+    period = 1e6 / frequency_hz
+    periods = max(1, int(exposure_us / period + 0.5 - 1e-9))
+    return int(round(periods * period))
 
 
 class NoLeds:

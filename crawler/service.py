@@ -21,7 +21,8 @@ from pathlib import Path
 from .checkpoint import Checkpoint, CheckpointOutput
 from .daemon import Daemon
 from .errors import CameraUnavailable
-from .leds import AutoBrightness, BrightnessLoop, Leds, NoLeds
+from .errors import BadConfig
+from .leds import AutoBrightness, BrightnessLoop, Leds, NoLeds, pwm_exposure_us
 from .commands import CommandQueue
 from .link import ZenohLink, ZenohOutput
 from .measurement import build_odometer, describe, recording_camera, thesis_roi
@@ -110,7 +111,7 @@ class Service:
             self.daemon.stats.error = self.daemon.stats.error or str(err)
 
     def _build(self, stack: ExitStack):
-        s = self.settings
+        self.settings = s = pwm_aligned(self.settings, self.mode)
         self.source = self._open_source()
         stack.push(self.source)         # entered already (so a camera can fall back): register its exit
         self.odometer = build_odometer(s, self.source.camera, self.source.default_roi)
@@ -205,6 +206,22 @@ def _entered(source):
     is registered; the caller pushes its __exit__."""
     source.__enter__()
     return source
+
+
+def pwm_aligned(settings: Settings, mode: Mode) -> Settings:
+    """With dimmed LEDs on the live camera, an exposure of whole PWM periods (leds.py says why)."""
+    led, cam = settings.leds, settings.camera
+    pins = led.pins or (SIM_PINS if mode is Mode.SIM else ())
+    if mode is Mode.REPLAY or not pins or (led.brightness >= 1.0 and not led.auto_brightness):
+        return settings
+    exposure = pwm_exposure_us(cam.exposure_us, led.frequency_hz)
+    if exposure > 1e6 / cam.fps:
+        raise BadConfig(f"[leds] frequency_hz = {led.frequency_hz:g}: one PWM period is longer than a frame at "
+                        f"[camera] fps = {cam.fps:g}; raise frequency_hz (lgpio takes up to 10000)")
+    if exposure != cam.exposure_us:
+        _log.warning("[camera] exposure_us = %d is not a whole number of %g Hz PWM periods (the LEDs "
+                     "would band the frames); using %d us", cam.exposure_us, led.frequency_hz, exposure)
+    return replace(settings, camera=replace(cam, exposure_us=exposure))
 
 
 def sim_settings(settings: Settings, options: RunOptions, state_dir_given: bool) -> Settings:

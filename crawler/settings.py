@@ -169,7 +169,7 @@ class OdometrySettings:
 class LedSettings:
     pins: tuple[int, ...] = _f((), _pins)
     brightness: float = _f(0.8, between(0, 1))
-    frequency_hz: float = _f(1000.0, _lgpio_frequency)
+    frequency_hz: float = _f(2000.0, _lgpio_frequency)    # 1500 us exposure = 3 whole PWM periods
     active_high: bool = _f(True)
     auto_brightness: bool = _f(False)
     target_grey: float = _f(110.0, between(0, 255))

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from crawler.camera import SENSOR_FOV_DEG, SENSOR_VBLANK_MIN, plan_window, snap_to_mode
+from crawler.camera import SENSOR_FOV_DEG, plan_window, snap_to_mode, vblank_lines
 from crawler.errors import BadConfig
 from crawler.geometry import Camera
 from crawler.settings import CameraSettings
@@ -28,8 +28,8 @@ def sensor(name):
 
 def plan(name, window=None, size=(240, 240), fps=200.0, vflip=False):
     modes, active = sensor(name)
-    return plan_window(modes, active, window, size, fps, SENSOR_FOV_DEG[name], SENSOR_VBLANK_MIN[name],
-                       vflip=vflip), active
+    return plan_window(modes, active, window, size, fps, SENSOR_FOV_DEG[name],
+                       lambda mode_size: vblank_lines(name, mode_size), vflip=vflip), active
 
 
 @pytest.mark.parametrize("name,mode,fps,crop,mode_rows", [
@@ -86,3 +86,16 @@ def test_impossible_windows_name_the_value():
     with pytest.raises(BadConfig, match=r"\[camera\] fps = 0 must be between 0 and 1000"):
         CameraSettings(fps=0)                     # validated once, in the settings
     assert math.isfinite(plan("imx708")[0].camera.readout_s)
+
+
+def test_imx708_blanking_is_per_mode():
+    """The IMX708 driver blanks 58 lines at full resolution and 40 in its binned modes: the line
+    time (and so the rolling-shutter readout) of each mode follows its own."""
+    assert vblank_lines("imx708", (4608, 2592)) == 58 and vblank_lines("imx708_wide", (2304, 1296)) == 40
+    assert vblank_lines("ov5647", (640, 480)) == 24 and vblank_lines("unknown", (1, 1)) == 0
+    modes, active = sensor("imx708")
+    full = next(m for m in modes if tuple(m["size"]) == (4608, 2592))
+    p = plan_window([full], active, None, (240, 240), 10.0, SENSOR_FOV_DEG["imx708"],
+                    lambda size: vblank_lines("imx708", size))
+    # the fake's driver table: line = HTS / pixel rate = 15648 / 595.2 MHz
+    assert p.line_time_s * 1e6 == pytest.approx(15648 / 595.2, rel=2e-3)

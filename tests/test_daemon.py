@@ -347,3 +347,50 @@ def test_an_unwritable_state_directory_is_in_the_status(tmp_path, zenoh_pair, op
         assert rig.thread.is_alive()                                  # measuring goes on
     finally:
         rig.finish()
+
+
+def test_dimmed_leds_get_an_exposure_of_whole_pwm_periods(tmp_path, zenoh_pair):
+    rig = Rig(tmp_path, zenoh_pair, publish=False, max_frames=5,
+              extra=["leds.frequency_hz=1000", "camera.exposure_us=1700"])
+    with rig.service as svc:
+        assert svc.source.settings.exposure_us == 2000          # 2 periods of 1 ms, not 1.7
+        svc.run()
+        with svc.source.cam.captured_request(wait=1.0) as r:
+            assert r.get_metadata()["ExposureTime"] == 2000      # what the camera was told
+    rig.finish()
+
+
+def _fake_picamera2_package(root, version, body):
+    pkg = root / "picamera2"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text(body)
+    info = root / f"picamera2-{version}.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: picamera2\nVersion: {version}\n")
+    return root
+
+
+@pytest.mark.parametrize("version,body,words", [
+    ("0.3.19", "class Picamera2: pass\nclass MappedArray: pass\n", "picamera2 0.3.19 is too old"),
+    ("0.3.25", "raise ImportError('numpy.core.multiarray failed to import')\n",
+     "cannot be imported (ImportError: numpy.core.multiarray failed to import)"),
+])
+def test_a_picamera2_that_cannot_work_is_refused_with_its_cause(tmp_path, version, body, words):
+    site = _fake_picamera2_package(tmp_path / "site", version, body) if (tmp_path / "site").mkdir() is None else None
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")]),
+               CRAWLERD_CONFIG=os.devnull)
+    p = subprocess.run([sys.executable, "-m", "crawler", "--no-publish", "--state-dir", str(tmp_path / "s")],
+                       capture_output=True, text=True, env=env, timeout=60)
+    assert p.returncode == 2 and words in p.stderr and "Traceback" not in p.stderr
+
+
+def test_a_missing_library_names_the_apt_package(tmp_path):
+    """Run with OpenCV hidden, as on a Pi whose venv does not see apt's python3-opencv."""
+    (tmp_path / "cv2").mkdir()
+    (tmp_path / "cv2" / "__init__.py").write_text("raise ModuleNotFoundError(\"No module named 'cv2'\", name='cv2')\n")
+    env = dict(os.environ, PYTHONPATH=str(tmp_path), CRAWLERD_CONFIG=os.devnull)
+    p = subprocess.run([sys.executable, "-m", "crawler", "--replay", "x.h264"], capture_output=True, text=True,
+                       env=env, timeout=60, cwd=tmp_path)
+    assert p.returncode == 2 and "Traceback" not in p.stderr
+    assert "sudo apt install python3-opencv" in p.stderr and "--system-site-packages" in p.stderr
+    assert "pip install 'crawlerd[pc]'" in p.stderr

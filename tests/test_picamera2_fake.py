@@ -276,7 +276,7 @@ def test_scaler_crop_is_clamped_quantised_and_rendered_exactly():
 # --- geometry round trip through crawlerd ---------------------------------------------------------
 
 def test_crawler_measures_the_true_distance_through_the_fake():
-    from crawler.camera import SENSOR_FOV_DEG, SENSOR_VBLANK_MIN, Picamera2Source, plan_window
+    from crawler.camera import SENSOR_FOV_DEG, Picamera2Source, plan_window, vblank_lines
     from crawler.settings import CameraSettings
     from crawler.geometry import Mount, make_projection
     from crawler.odometry import Odometer
@@ -288,7 +288,7 @@ def test_crawler_measures_the_true_distance_through_the_fake():
     modes = probe.sensor_modes
     probe.close()
     plan = plan_window(modes, (3280, 2464), window, out, 100.0, SENSOR_FOV_DEG["imx219"],
-                       SENSOR_VBLANK_MIN["imx219"])
+                       vblank_lines("imx219", (640, 480)))
     assert plan.mode["size"] == (640, 480) and plan.scaler_crop == window
     src = Picamera2Source(CameraSettings(sensor_window=window, output_size=out, fps=100.0, exposure_us=2000,
                                          analogue_gain=4.0), Picamera2)

@@ -115,3 +115,24 @@ def test_notifier_sends_ready_watchdog_stopping(tmp_path):
     n.close()
     assert not Notifier({}).enabled       # outside systemd: a no-op
     Notifier({}).ready()
+
+
+def test_exposure_is_a_whole_number_of_pwm_periods():
+    from crawler.leds import pwm_exposure_us
+
+    assert pwm_exposure_us(1500, 2000) == 1500          # the defaults: 3 periods
+    assert pwm_exposure_us(1500, 1000) == 1000          # 1.5 periods: ties go to less blur
+    assert pwm_exposure_us(1700, 1000) == 2000
+    assert pwm_exposure_us(100, 1000) == 1000           # at least one period
+    assert pwm_exposure_us(2600, 3000) == 2667
+
+
+def test_a_busy_pin_is_named(pins):
+    first = Leds([12], pin_factory=pins)
+    try:
+        with pytest.raises(CrawlerError, match=r"LED pin 12 cannot be driven \(gpiozero: .*no other program"):
+            Leds([13, 12], pin_factory=pins)
+        assert pins.pin(13).state == 0                  # the pin it did take is released again
+    finally:
+        first.close()
+
