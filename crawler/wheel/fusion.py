@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 from .learn import ScaleLearner, SlipDetector
+from .timeline import WheelTimeline
 
 
 @dataclass(frozen=True)
@@ -94,12 +95,6 @@ def _field(data: dict, key: str, lo: float = -math.inf, hi: float = math.inf) ->
     return float(v)
 
 
-def _wrap(dp: float, period: float | None) -> float:
-    if period:
-        return (dp + 0.5 * period) % period - 0.5 * period
-    return dp
-
-
 class WheelFusion:
     """The filter. State: distance, speed, wheel scale (and the wheel's last count and time)."""
 
@@ -124,11 +119,7 @@ class WheelFusion:
         self._gap_var = 0.0                  # ...and its random part
         self._open = None                    # [start_t, ahead_m, vision travel] of a disagreement
         # the wheel: unwrapped nominal distance, readings for interpolation to frame times
-        self._epoch = None
-        self._raw = 0.0
-        self._period = None
-        self._w = 0.0
-        self._ring: deque[tuple[float, float]] = deque(maxlen=8)
+        self.wheel = WheelTimeline()
         self._w_prev = None                  # unwrapped wheel at the last frame that used it
         self.wheel_distance = None
         self._mismatch_told = False
@@ -148,9 +139,7 @@ class WheelFusion:
         bridged = bool(getattr(vision, "bridged", False))
         w = None
         if wheel is not None:
-            self._ingest(wheel)
-            self._settle_anchor()
-            w = self._wheel_at(t)
+            w = self._read_wheel(t, wheel)
         dw = None if w is None or self._w_prev is None else w - self._w_prev
         if self._offset is None:
             self._offset = self.d - v
@@ -169,7 +158,7 @@ class WheelFusion:
         self._v_prev, self._sv2_prev, self._tracking_prev = v, sv * sv, tracking
         sigma = math.sqrt(self._var + self._gap_sys ** 2 + self._gap_var + sv * sv)
         return FusedEstimate(t, self.d, sigma, self.speed, source, self.slip.state > 0,
-                             self.wheel_distance, self.scale.k if self._epoch is not None else None,
+                             self.wheel_distance, self.scale.k if self.wheel.epoch is not None else None,
                              event)
 
     def set_distance(self, distance_m: float, vision_m: float | None = None):
@@ -192,9 +181,10 @@ class WheelFusion:
         travel since then is added to it.
         """
         wheel = None
-        if self._epoch is not None and self._w_prev is not None:
-            wheel = {"position_m": self._raw - (self._w - self._w_prev), "period_m": self._period,
-                     "epoch": self._epoch, "t_s": self._t_prev}
+        tl = self.wheel
+        if tl.epoch is not None and self._w_prev is not None:
+            wheel = {"position_m": tl.raw_at(self._w_prev), "period_m": tl.period,
+                     "epoch": tl.epoch, "t_s": self._t_prev}
         return {"version": 1, "distance_m": self.d,
                 "var_m2": self._var + self._gap_sys ** 2 + self._gap_var,
                 "scale": self.scale.k, "scale_sigma": self.scale.sigma,
@@ -216,9 +206,9 @@ class WheelFusion:
         if wheel is not None:
             if not isinstance(wheel, dict) or not isinstance(wheel.get("epoch"), str):
                 raise ValueError(f"wheel state: wheel = {str(wheel)[:60]!r} needs position_m and epoch")
-            f._epoch, f._raw = wheel["epoch"], _field(wheel, "position_m")
-            f._period = _field(wheel, "period_m", 0.0) if wheel.get("period_m") else None
-            f._w = f._w_prev = 0.0
+            period = _field(wheel, "period_m", 0.0) if wheel.get("period_m") else None
+            f.wheel.resume(wheel["epoch"], _field(wheel, "position_m"), period)
+            f._w_prev = 0.0
             f._resuming = True
         return f
 
@@ -311,6 +301,10 @@ class WheelFusion:
             self._open[1] += r if dw > 0 else (-r if dw < 0 else -abs(r))
             self._open[2] += abs(dv)
             if self._open[2] > self.p.max_slip_m:
+                (_, v0, w0), (_, v1, w1) = det.oldest, det.newest
+                if (w1 - w0) * (v1 - v0) < 0:
+                    self._notes.append("the wheel counts backwards while vision moves forwards: "
+                                       "set [wheel] direction = -1")
                 self._notes.append(f"wheel and vision disagreed for {self._open[2]:.1f} m "
                                    f"(wheel scale {sc.k:.4f}); taken as a change of wheel scale, "
                                    "relearning it")
@@ -334,67 +328,29 @@ class WheelFusion:
 
     # -- the wheel's readings -----------------------------------------------------------------------
 
-    def _ingest(self, r):
-        """Unwrap a reading into the cumulative nominal distance; notice a counter that restarted."""
-        if r.epoch != self._epoch:
-            if self._epoch is not None:
-                self._notes.append(f"wheel counter restarted (epoch {self._epoch} -> {r.epoch}); "
-                                   "the distance moved meanwhile is not known")
-                self._w_prev = None
-            self._epoch, self._raw, self._period = r.epoch, r.position_m, r.period_m
-            self._ring.clear()
-        else:
-            self._w += _wrap(r.position_m - self._raw, r.period_m)
-            self._raw, self._period = r.position_m, r.period_m
-        ring = self._ring
-        if ring and r.t_s <= ring[-1][0]:
-            if r.t_s == ring[-1][0]:
-                ring[-1] = (r.t_s, self._w)
-            return
-        ring.append((r.t_s, self._w))
-
-    def _wheel_at(self, t):
-        """The wheel at frame time t: interpolated between the readings around it."""
-        ring = self._ring
-        t1, w1 = ring[-1]
-        if t >= t1:
-            if t - t1 > 1.0:
-                self._clock_mismatch(t, t1)
-            return w1
-        t0, w0 = ring[0]
-        if t <= t0:
-            if t0 - t > 1.0:
-                self._clock_mismatch(t, t0)
-                return w1
-            self._early = t < t0       # before every reading: settled once a second one comes
-            return w0
-        for i in range(len(ring) - 1, 0, -1):
-            ta, wa = ring[i - 1]
-            if ta <= t:
-                tb, wb = ring[i]
-                return wa + (wb - wa) * (t - ta) / (tb - ta)
-        return w0
-
-    def _settle_anchor(self):
-        """The last frame came before every reading and took the first one's value: now that two
-        readings exist, extrapolate back to its time (and correct its step if the wheel made it)."""
-        self._early = False
-        if not self._w_prev_early or len(self._ring) < 2 or self._w_prev is None:
-            return
-        (t0, w0), (t1, w1) = self._ring[0], self._ring[1]
-        fixed = w0 + (w1 - w0) * (self._t_prev - t0) / (t1 - t0)
-        if self._source_prev == "wheel":
-            k = self.scale.k
-            self.d += k * (fixed - self._w_prev)
-            self._offset += k * (fixed - self._w_prev)
-            self.wheel_distance += k * (fixed - self._w_prev)
-        self._w_prev, self._w_prev_early = fixed, False
-
-    def _clock_mismatch(self, t, tw):
-        if not self._mismatch_told:
+    def _read_wheel(self, t, wheel):
+        """The wheel at frame time t (or None), after settling the last frame's early anchor."""
+        tl = self.wheel
+        if not tl.ingest(wheel) and self._w_prev is not None:
+            self._notes.append(f"wheel counter restarted (epoch now {wheel.epoch}); the distance "
+                               "moved meanwhile is not known")
+            self._w_prev, self._resuming = None, False
+        if self._w_prev_early and self._w_prev is not None:
+            fixed = tl.extrapolate(self._t_prev)
+            if fixed is not None:
+                if self._source_prev == "wheel":
+                    k = self.scale.k
+                    self.d += k * (fixed - self._w_prev)
+                    self._offset += k * (fixed - self._w_prev)
+                    self.wheel_distance += k * (fixed - self._w_prev)
+                self._w_prev, self._w_prev_early = fixed, False
+        w, self._early = tl.at(t)
+        if tl.mismatch is not None and not self._mismatch_told:
             self._mismatch_told = True
-            self._notes.append(f"wheel reading at t={tw:.3f} s but frame at t={t:.3f} s: the wheel "
-                               "port's clock is not the frame clock; using the newest reading")
+            self._notes.append(f"wheel reading at t={tl.mismatch[1]:.3f} s but frame at "
+                               f"t={tl.mismatch[0]:.3f} s: the wheel port's clock is not the frame "
+                               "clock; using the newest reading")
+        return w
 
     # -- bookkeeping --------------------------------------------------------------------------------
 
