@@ -79,6 +79,22 @@ def test_target_run_within_0p2_percent_and_slip_flagged_only_around_8_to_9_s(bri
     assert last.speed_m_s == pytest.approx(0.2, abs=0.01)
 
 
+def test_a_controller_reporting_at_10_hz_is_extrapolated_to_the_frames():
+    """Zenoh-style readings: each older than the frame, ten a second, in millimetres."""
+    motion, enc, vision = target_world()
+    fusion = WheelFusion(FusionParams(quantum_m=0.001))
+    run = []
+    for i in range(round(15 * FPS) + 1):
+        t = i / FPS
+        t_msg = math.floor((t - 0.005) * 10) / 10                 # the newest message that arrived
+        r = WheelReading(t_msg, round(enc.edges_at(t_msg) / CPM, 3), None, "ctl")
+        run.append((t, fusion.update(vision.estimate(t), r)))
+    assert abs(run[-1][1].distance_m - 3.0) <= 0.002 * 3.0
+    slipping = [t for t, f in run if f.slip]
+    assert slipping and min(slipping) >= 7.5 and max(slipping) <= 9.5
+    assert all(f.slip for t, f in run if 8.3 <= t <= 9.0)
+
+
 def test_without_a_wheel_the_distance_is_vision_s_own():
     motion = Motion("constant", 0.2, 5.0)
     vision = VisionModel(motion.distance, featureless=[(1.0, 1.3)], bridge=True)

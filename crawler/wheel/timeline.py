@@ -1,8 +1,9 @@
 """The wheel's readings on the frame clock: unwrapped, and interpolated to each frame's time. Pure.
 
-Readings arrive when the daemon polls (after the frame it belongs to), so the wheel's position at
-the frame's exposure lies between two readings; a frame before every reading is settled once the
-second reading allows extrapolating back to it.
+A poll after the frame (kernel, gpiozero) puts the frame's exposure between two readings; a
+controller's messages (Zenoh) may be older than the frame, which is then extrapolated at the
+wheel's last rate (up to horizon_s). A frame before every reading is settled once the second
+reading allows extrapolating back to it.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ class WheelTimeline:
         self.w = 0.0              # unwrapped, cumulative since this filter started
         self.ring: deque[tuple[float, float]] = deque(maxlen=8)
         self.mismatch = None      # (frame t, reading t) the first time they were > 1 s apart
+        self.horizon_s = 0.25     # a frame this much after the newest reading is extrapolated to
 
     def resume(self, epoch: str, position_m: float, period_m: float | None):
         """Continue from a saved reading: the next one of the same epoch unwraps against it."""
@@ -54,8 +56,13 @@ class WheelTimeline:
         ring = self.ring
         t1, w1 = ring[-1]
         if t >= t1:
-            if t - t1 > 1.0 and self.mismatch is None:
-                self.mismatch = (t, t1)
+            if t - t1 > 1.0:
+                if self.mismatch is None:
+                    self.mismatch = (t, t1)
+                return w1, False
+            if len(ring) > 1 and t - t1 <= self.horizon_s:   # a reading older than the frame
+                t0, w0 = ring[-2]
+                return w1 + (w1 - w0) * (t - t1) / (t1 - t0), False
             return w1, False
         t0, w0 = ring[0]
         if t <= t0:
