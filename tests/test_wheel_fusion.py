@@ -227,3 +227,12 @@ def test_operator_reset_counts_from_zero_without_a_jump():
 def test_vision_fix_defaults_mean_a_measured_frame():
     fix = VisionFix(0.0, 0.0)
     assert fix.tracking and not fix.bridged and fix.sigma_m is None
+
+
+def test_a_non_finite_vision_distance_is_a_lost_frame():
+    motion, enc, vision = target_world()
+    fusion = WheelFusion(FusionParams(quantum_m=1 / CPM))
+    drive(fusion, vision, enc, 0.0, 1.0)
+    f = fusion.update(VisionFix(1.0 + 1 / FPS, float("nan"), None, True), reading(enc, 1.0 + 1 / FPS + LATENCY))
+    assert f.source == "wheel" and math.isfinite(f.distance_m)
+    assert f.distance_m == pytest.approx(motion.distance(1.0 + 1 / FPS), abs=5e-4)

@@ -117,14 +117,14 @@ class WheelFusion:
         self._var = 0.0                      # variance of what wheel and model carried, closed gaps
         self._gap_sys = 0.0                  # the open gap: scale error (systematic, adds linearly)
         self._gap_var = 0.0                  # ...and its random part
-        self._open = None                    # [start_t, ahead_m, vision travel] of a disagreement
+        self._open = None                    # [start_t, ahead_m, vision travel, state] of a disagreement
         # the wheel: unwrapped nominal distance, readings for interpolation to frame times
         self.wheel = WheelTimeline()
         self._w_prev = None                  # unwrapped wheel at the last frame that used it
         self.wheel_distance = None
         self._mismatch_told = False
-        self._held = False
-        self._resuming = False
+        self._held = False                   # this frame advanced nothing: the wheel anchor stays
+        self._resuming = False               # restored by from_dict, the restart not yet bridged
         self._early = False                  # this frame came before every wheel reading
         self._w_prev_early = False
         self._source_prev = None
@@ -137,6 +137,8 @@ class WheelFusion:
         sv = getattr(vision, "sigma_m", None) or self.p.vision_sigma_m
         tracking = bool(vision.tracking)
         bridged = bool(getattr(vision, "bridged", False))
+        if not math.isfinite(v):             # never let a bad number into the distance
+            v, tracking, bridged = (self._v_prev if self._v_prev is not None else 0.0), False, False
         w = None
         if wheel is not None:
             w = self._read_wheel(t, wheel)
