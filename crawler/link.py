@@ -107,14 +107,14 @@ class ZenohLink:
             if self._closed.is_set():
                 session.close()
                 return True
+            recovered, self.last_error = self.last_error, None
             self.session, self._pubs, self._decls = session, pubs, decls
             self._workers = [threading.Thread(target=self._serve, args=(q,), name=f"zenoh-{i}", daemon=True)
                              for i, q in enumerate(queryables)]
             for w in self._workers:
                 w.start()
-        if self.last_error:
+        if recovered:
             _log.warning("zenoh session open after retrying")
-        self.last_error = None
         return True
 
     def _retry_loop(self):
@@ -129,12 +129,13 @@ class ZenohLink:
             self._pubs, decls, self._decls = {}, self._decls, []
             workers, self._workers = self._workers, []
         if session is not None:
-            for d in decls:
-                try:
-                    d.undeclare()
-                except Exception:
-                    pass
-            session.close()
+            # the liveliness token first (the operator sees us go); the queryables go with the session:
+            # undeclaring one while its worker blocks in recv() aborts the process ("Already borrowed")
+            try:
+                decls[0].undeclare()
+            except Exception:
+                pass
+            session.close()               # a blocked recv() now raises and the workers end
         for w in workers:
             w.join(timeout=2.0)
 
@@ -216,8 +217,9 @@ class ZenohOutput(Output):
     once more when measurement stops (so the operator sees the lights go out)."""
 
     def __init__(self, link: ZenohLink, publish_hz: float = 30.0, status_hz: float = 1.0,
-                 clock=time.monotonic):
+                 clock=time.monotonic, control: str = "open"):
         self.link = link
+        self.control = control          # "open" or "authenticated": who may send commands
         self.publish_every_s, self.status_every_s = 1.0 / publish_hz, 1.0 / status_hz
         self.clock = clock
         self._last_pub = self._last_status = -float("inf")
@@ -236,6 +238,7 @@ class ZenohOutput(Output):
             self.link.publish_status(run.status())
 
     def report(self, status):
+        status["control"] = self.control
         if status.get("last_error") is None:
             status["last_error"] = self.link.last_error
 

@@ -31,6 +31,7 @@ from .sdnotify import Notifier, WatchdogOutput
 from .settings import Settings
 from .sim import SimOptions, SimSource, make_world
 from .stats import RunStats
+from .zenoh_config import check_zenoh_config, command_access
 
 _log = logging.getLogger("crawlerd")
 SIM_PINS = (12, 13)                 # --sim lights mock LEDs on these when [leds] pins is empty
@@ -184,8 +185,10 @@ class Service:
         if self.mode is not Mode.REPLAY:
             outs.append(WatchdogOutput(self.hw.notifier or Notifier(), lambda: self.source.description))
         if o.publishes:
-            link = ZenohLink(s.name, s.zenoh.zenoh_config(), self.commands)
-            outs.append(ZenohOutput(link, s.zenoh.publish_hz, s.zenoh.status_hz, clock=self.hw.clock))
+            conf, access = zenoh_setup(s)
+            link = ZenohLink(s.name, conf, self.commands)
+            outs.append(ZenohOutput(link, s.zenoh.publish_hz, s.zenoh.status_hz, clock=self.hw.clock,
+                                    control=access))
         return outs
 
     # -- running ----------------------------------------------------------------------------------------
@@ -206,6 +209,18 @@ def _entered(source):
     is registered; the caller pushes its __exit__."""
     source.__enter__()
     return source
+
+
+def zenoh_setup(settings: Settings):
+    """The zenoh config, checked (a config error is exit 2, never a retry loop), and who may command."""
+    conf = settings.zenoh.zenoh_config()
+    check_zenoh_config(conf)
+    access = command_access(conf, settings.name)
+    if access == "open":
+        _log.warning("commands (cmd/reset, cmd/led) are open to any peer that reaches this crawler: anyone "
+                     "can zero its distance; give [zenoh] config an access-control policy (docs/deploy.md, "
+                     "'Securing the network')")
+    return conf, access
 
 
 def pwm_aligned(settings: Settings, mode: Mode) -> Settings:
@@ -238,6 +253,8 @@ def check_config(settings: Settings, options: RunOptions, hardware: Hardware | N
     camera when it can be opened)."""
     camera = recording_camera(settings.camera)
     out = {"name": settings.name, **describe(settings, camera, thesis_roi(camera.width, camera.height))}
+    if options.publishes:
+        out["zenoh"] = {"control": zenoh_setup(settings)[1]}
     if options.mode is Mode.REPLAY:
         return out
     hw = hardware or Hardware()

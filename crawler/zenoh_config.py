@@ -63,3 +63,74 @@ def make_zenoh_config(mode: str | None = "peer", listen=(), connect=(), config_f
     return conf
 
 
+
+
+# files a zenoh config may name; zenoh itself reports a missing connect-side one only as a failed connect
+_FILE_KEYS = ("transport/link/tls/root_ca_certificate", "transport/link/tls/listen_private_key",
+              "transport/link/tls/listen_certificate", "transport/link/tls/connect_private_key",
+              "transport/link/tls/connect_certificate", "transport/auth/usrpwd/dictionary_file")
+
+
+def _get(conf, key, default=None):
+    try:
+        return json.loads(conf.get_json(key))
+    except Exception:                 # zenoh raises for a key the config does not have
+        return default
+
+
+def check_zenoh_config(conf) -> None:
+    """Refuse a config zenoh would refuse, without touching the real network: the files it names must
+    be readable, and a copy of it must open with its listeners on ephemeral loopback ports and no
+    connections (that loads TLS listener files and the access-control policy). BadConfig otherwise."""
+    import os
+
+    import zenoh
+
+    for key in _FILE_KEYS:
+        path = _get(conf, key)
+        if path and not os.access(path, os.R_OK):
+            raise BadConfig(f"zenoh config {key} = {path!r}: no such file or not readable")
+    dry = zenoh.Config.from_json5(str(conf))
+    mode = _get(conf, "mode") or "peer"
+    listen = _get(conf, "listen/endpoints") or []
+    if isinstance(listen, dict):      # the per-mode form {router: [...], peer: [...]}
+        listen = listen.get(mode, [])
+    loopback = [f"{e.partition('/')[0]}/127.0.0.1:0" for e in listen
+                if e.partition("/")[0] in ("tcp", "tls", "udp", "quic", "ws")]
+    dry.insert_json5("listen/endpoints", json.dumps(loopback))
+    dry.insert_json5("connect/endpoints", "[]")
+    dry.insert_json5("scouting/multicast/enabled", "false")
+    dry.insert_json5("scouting/gossip/enabled", "false")
+    if mode == "client":              # a client with nothing to connect to never opens
+        dry.insert_json5("mode", '"peer"')
+    try:
+        zenoh.open(dry).close()
+    except Exception as exc:
+        raise BadConfig(f"zenoh refuses the configuration: {zenoh_message(exc)}") from None
+
+
+def command_access(conf, name: str) -> str:
+    """"authenticated" when access control lets only authenticated subjects (certificate common
+    names or user names) query crawler/<name>/cmd/**, else "open"."""
+    import zenoh
+
+    acl = _get(conf, "access_control") or {}
+    if not acl.get("enabled"):
+        return "open"
+    cmd = zenoh.KeyExpr(f"crawler/{name}/cmd/reset")
+    rules = {r.get("id"): r for r in acl.get("rules") or []}
+    subjects = {s.get("id"): s for s in acl.get("subjects") or []}
+
+    def grants(rule) -> bool:
+        return (rule.get("permission") == "allow" and "query" in (rule.get("messages") or [])
+                and "ingress" in (rule.get("flows") or ["ingress", "egress"])
+                and any(zenoh.KeyExpr(k).intersects(cmd) for k in rule.get("key_exprs") or []))
+
+    def authenticated(subject) -> bool:
+        return bool(subject.get("cert_common_names") or subject.get("usernames"))
+
+    for policy in acl.get("policies") or []:
+        if any(grants(rules.get(r, {})) for r in policy.get("rules") or []):
+            if not all(authenticated(subjects.get(s, {})) for s in policy.get("subjects") or []):
+                return "open"
+    return "open" if acl.get("default_permission") == "allow" else "authenticated"
