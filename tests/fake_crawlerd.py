@@ -48,6 +48,7 @@ class FakeCrawler:
         self.run = 1
         self.observations: list[dict] = []
         self.seq = self.frame = 0
+        self.t_s = 0.0
         self.lock = threading.Lock()
         conf = make_zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"], multicast=False)
         self.session = zenoh.open(conf)
@@ -84,11 +85,12 @@ class FakeCrawler:
         """One frame: the distance advances unless tracking is lost and nothing bridges it."""
         with self.lock:
             self.frame += 1
+            self.t_s = round(self.t_s + dt, 6)
             if tracking or bridged:
                 self.distance_m += self.speed * dt
             self.seq += 1
             sigma = 0.002 + 0.001 * self.distance_m + (0.05 if bridged else 0.0)
-            e = {"seq": self.seq, "name": self.name, "frame": self.frame, "t_s": round(self.frame * dt, 6),
+            e = {"seq": self.seq, "name": self.name, "frame": self.frame, "t_s": self.t_s,
                  "distance_m": round(self.distance_m, 6), "sigma_m": round(sigma, 6),
                  "speed_m_s": self.speed if (tracking or bridged) else None, "quality": 0.9 if tracking else 0.0,
                  "tracking": tracking, "bridged": bridged, "slip": slip,
@@ -173,7 +175,7 @@ class FakeCrawler:
         if not a.get("code"):
             raise ValueError("mark needs a code")
         obs = {"id": len(self.observations) + 1, "run_id": self.run_id, "t_unix": time.time(),
-               "t_s": round(self.frame * 0.02, 6), "distance_m": round(self.distance_m, 6),
+               "t_s": self.t_s, "distance_m": round(self.distance_m, 6),
                "footage_m": self.footage_m(), "unit": self.unit, "code": a["code"],
                "clock": int(a["clock"]) if a.get("clock") is not None else None,
                "kind": a.get("kind", "point"), "note": a.get("note")}

@@ -7,6 +7,7 @@ import io
 import json
 import re
 import struct
+import sys
 import threading
 import time
 
@@ -164,7 +165,7 @@ def test_the_plot_has_lines_sigma_band_shaded_stretches_and_observation_markers(
     assert lo == pytest.approx(-0.004, abs=1e-3) and hi == pytest.approx(0.1 * 299 / 30 + 2 * 0.012, abs=1e-3)
     labels = [t.get_text() for t in ax_d.get_legend().get_texts()]
     assert labels == ["alpha", "beta", "±2σ", "bridged (motion model)", "tracking lost (held)", "went silent",
-                      "observation"]
+                      "observation (▶ start, ◀ finish)"]
     speed = next(a for a in ax_v.get_lines() if a.get_gid() == "speed:beta")
     assert np.isnan(speed.get_ydata()[110]) and speed.get_ydata()[50] == pytest.approx(0.2)
 
@@ -199,8 +200,8 @@ def test_the_report_pairs_continuous_defects_and_embeds_the_plot(tmp_path, capsy
     assert [(r["crawler"], r["code"], r["kind"], r["continuous"]) for r in rows] == [
         ("alpha", "FL", "start", "C1 start"), ("alpha", "FL", "finish", "C1 finish"), ("alpha", "CL", "point", ""),
         ("beta", "DAE", "start", "C2 start")]
-    assert rows[0]["remarks"] == "continuous to 0.6 m (0.40 m long)"
-    assert rows[1]["remarks"] == "continuous from 0.2 m (0.40 m long)"
+    assert rows[0]["remarks"] == "continuous to 0.6 m (0.4 m long)"
+    assert rows[1]["remarks"] == "continuous from 0.2 m (0.4 m long)"
     assert rows[3]["remarks"] == "<deposit> & more; no finish recorded"
     assert (rows[3]["footage"], rows[3]["clock"], rows[3]["video_time"]) == ("5.9 ft", "6", "0:00:09.0")
     assert video_time(3723.46) == "1:02:03.5" and video_time(59.96) == "0:01:00.0"
@@ -296,3 +297,23 @@ def _listening(port):
 
     with socket.socket() as s:
         return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+@pytest.mark.parametrize("module, argv, needs", [
+    ("matplotlib", ["plot", "{rec}"], "plot and report needs matplotlib"),
+    ("matplotlib", ["report", "{rec}"], "plot and report needs matplotlib"),
+    ("mcap", ["plot", "{tmp}/run.mcap"], "reading an MCAP record needs mcap"),
+    ("mcap", ["--record", "{tmp}/new.mcap", "--duration", "1"], "an MCAP record needs mcap"),
+    ("foxglove", ["--foxglove", "--duration", "1"], "--foxglove needs foxglove-sdk"),
+])
+def test_a_missing_monitor_package_says_how_to_install_it(tmp_path, capsys, monkeypatch, module, argv, needs):
+    rec = _jsonl(tmp_path, synthetic_records(30))
+    write_sample(tmp_path / "run.mcap").close()
+    for name in [m for m in sys.modules if m == module or m.startswith(module + ".")]:
+        monkeypatch.setitem(sys.modules, name, None)        # as if it were not installed
+    monkeypatch.setitem(sys.modules, module, None)
+    rc = main([a.format(rec=rec, tmp=tmp_path) for a in argv] + ["--no-multicast"] * (argv[0].startswith("-")))
+    out, err = capsys.readouterr()
+    assert rc == 1 and out == ""
+    assert err.startswith(f"crawler-monitor: error: {needs}") and "pip install 'crawlerd[monitor]'" in err
+    assert err.count("\n") == 1

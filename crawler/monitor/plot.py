@@ -156,7 +156,7 @@ def _draw_series(ax_d, ax_v, s: Series, color: str):
         for ax in (ax_d, ax_v):
             ax.axvline(t, color=color, ls="--", lw=1, gid=f"silent:{s.name}")
     for t, d, code, kind in s.observations:
-        ax_d.plot([t], [d], MARKERS.get(kind, "v"), color="black", ms=7, gid=f"observation:{s.name}")
+        ax_d.plot([t], [d], MARKERS.get(kind, "v"), color=color, mec="black", ms=8, gid=f"observation:{s.name}")
         ax_d.annotate(code, (t, d), textcoords="offset points", xytext=(0, 8), ha="center", fontsize=7)
 
 
@@ -175,7 +175,8 @@ def _legend(ax, series: dict):
     if any(s.silent_at for s in series.values()):
         handles.append(Line2D([], [], color="0.3", ls="--", label="went silent"))
     if any(s.observations for s in series.values()):
-        handles.append(Line2D([], [], marker="v", color="black", ls="", label="observation"))
+        handles.append(Line2D([], [], marker="v", color="0.5", mec="black", ls="", label="observation (▶ start, "
+                              "◀ finish)"))
     lines, labels = ax.get_legend_handles_labels()
     ax.legend(lines + handles, labels + [h.get_label() for h in handles], loc="upper left", fontsize="small",
               ncols=2)

@@ -46,7 +46,8 @@ def observation_rows(records: list[dict]) -> list[dict]:
                "footage": footage_text(o.get("footage_m", o.get("distance_m")), o.get("unit")),
                "video_time_s": o.get("t_s"), "video_time": video_time(o.get("t_s")),
                "time": _local(_stamp(o)), "code": o.get("code", ""), "clock": _clock(o.get("clock")),
-               "kind": kind, "continuous": "", "remarks": [str(o["note"])] if o.get("note") else []}
+               "kind": kind, "continuous": "", "remarks": [str(o["note"])] if o.get("note") else [],
+               "_footage_m": _number(o.get("footage_m", o.get("distance_m")))}
         key = (name, o.get("run_id"), o.get("code"))
         if kind == "start":
             pairs += 1
@@ -68,7 +69,12 @@ def observation_rows(records: list[dict]) -> list[dict]:
             row["remarks"].append("no finish recorded")
     for row in rows:
         row["remarks"] = "; ".join(row["remarks"])
+        del row["_footage_m"]
     return rows
+
+
+def _number(v):
+    return None if v is None else float(v)
 
 
 def _stamp(o: dict) -> float:
@@ -85,8 +91,9 @@ def _clock(c) -> str:
 
 
 def _length(start: dict, finish: dict) -> str:
-    a, b = start.get("distance_m"), finish.get("distance_m")
-    return "" if a is None or b is None else f" ({abs(float(b) - float(a)):.2f} m long)"
+    """The length of a continuous defect, in the footage's unit to a tenth."""
+    a, b = start["_footage_m"], finish["_footage_m"]
+    return "" if a is None or b is None else f" ({footage_text(abs(b - a), finish['unit'])} long)"
 
 
 def write_report(records: list[dict], out: Path, title: str) -> str:

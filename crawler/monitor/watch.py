@@ -271,6 +271,9 @@ class _Nothing:
 
 def cmd_watch(args, prog: str) -> int:
     w = Watch(args)
+    if w.foxglove is not None:
+        print(f"{prog}: serving Foxglove on {w.foxglove.url} (in Foxglove: Open connection, Foxglove WebSocket)",
+              file=sys.stderr, flush=True)
     try:
         with Stop() as stop:
             session = open_session(args)
