@@ -553,7 +553,7 @@ def test_commands_reach_crawlerd_sim(tmp_path, capsys):
     net = ["--no-multicast", "--connect", f"tcp/127.0.0.1:{port}"]
     daemon = _crawlerd_sim(tmp_path, port, 600)
     try:
-        rc, out, err = run_main(capsys, "status", "crawler1", "--timeout", "8", *net)
+        rc, out, err = run_main(capsys, "status", "crawler1", "--timeout", "6", *net)
         assert rc == 0 and json.loads(out)["name"] == "crawler1", err
         for argv in (["zero", "crawler1"], ["units", "crawler1", "ft"], ["preset", "crawler1", "40"],
                      ["mark", "crawler1", "FL", "--clock", "3"], ["led", "crawler1", "0.3"], ["reset", "crawler1"]):
