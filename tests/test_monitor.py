@@ -562,3 +562,15 @@ def test_commands_reach_crawlerd_sim(tmp_path, capsys):
     finally:
         daemon.kill()
         daemon.communicate()
+
+
+def test_the_live_view_without_rich_says_how_to_install_it_before_zenoh_opens(monkeypatch):
+    from crawler.monitor.deps import MissingExtra
+
+    for name in [m for m in sys.modules if m == "rich" or m.startswith("rich.")]:
+        monkeypatch.setitem(sys.modules, name, None)
+    monkeypatch.setitem(sys.modules, "rich", None)
+    args = build_parser().parse_args(["watch"])
+    with pytest.raises(MissingExtra, match=r"the live view needs rich .*pip install 'crawlerd\[monitor\]'.*--plain"):
+        Watch(args, out=Tty())
+    Watch(build_parser().parse_args(["watch", "--plain"]), out=Tty()).close()      # plain needs no rich

@@ -16,6 +16,7 @@ import sys
 import threading
 import time
 
+from .deps import require
 from .fleet import Event, FleetState
 from .keys import HELP, Keyboard, Mark, MarkPrompt, Quit
 from .net import Feed, Received, command, open_session
@@ -65,6 +66,8 @@ class Watch:
         self.keyboard = keyboard or Keyboard()
         self.sinks = []
         self.writer = self.foxglove = None
+        if self.live:                           # before zenoh opens, like the record
+            require("rich.live", "the live view", "--plain prints one line per update without it")
         try:
             if args.record:
                 self.writer = open_record(args.record)
@@ -221,13 +224,11 @@ class Watch:
     def _open_screen(self):
         if not self.live:
             return
-        from .deps import require
-
-        live = require("rich.live", "the live view", "--plain prints one line per update without it")
         from rich.console import Console
+        from rich.live import Live
 
         console = Console(file=self.out, force_terminal=True, no_color=bool(self.args.no_color))
-        self._live = live.Live(console=console, auto_refresh=False, transient=False,
+        self._live = Live(console=console, auto_refresh=False, transient=False,
                                vertical_overflow="crop", redirect_stdout=False, redirect_stderr=False)
         self._live.start()
 
