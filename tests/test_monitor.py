@@ -1,28 +1,37 @@
-"""crawler-monitor: pure parts (fleet state, view, record, plot), then the real thing on loopback Zenoh.
+"""crawler-monitor: pure parts (fleet state, view, keys, arguments), then the real thing on loopback Zenoh.
 
-The network tests emulate two daemons with crawler.link.ZenohLink (the daemon's own publishers, token
-and queryable), each listening on its own loopback port, and run the monitor's main() against them.
+The network tests emulate daemons with tests/fake_crawlerd.py (real zenoh sessions speaking the
+protocol of issue 15: commands on crawler/<name>/cmd/<verb>, status on request), each listening on its
+own loopback port, and run the monitor's main() against them. One test runs crawlerd --sim itself.
+Records, MCAP, plots, reports and Foxglove are in test_monitor_outputs.py.
 """
 
+import io
 import json
+import os
+import pty
+import re
 import signal
 import subprocess
 import sys
+import termios
 import threading
 import time
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 
 from conftest import free_port, wait_for
+from fake_crawlerd import FakeCrawler
 from crawler.monitor import main
-from crawler.monitor.cli import build_parser, with_default_command
-from crawler.monitor.fleet import FleetState
-from crawler.monitor.plot import line_color, nice_ticks, plot_records
-from crawler.monitor.record import COLUMNS, RecordError, RecordWriter, read_records
-from crawler.monitor.view import render
+from crawler.monitor.cli import build_parser
+from crawler.monitor.commands import mark_args, preset_args
+from crawler.monitor.fleet import FleetState, footage_text
+from crawler.monitor.keys import Keyboard, Mark, MarkPrompt, Quit, parse_mark
+from crawler.monitor.net import open_session
+from crawler.monitor.record import COLUMNS, read_records
+from crawler.monitor.view import plain_line, render, render_text
+from crawler.monitor.watch import Watch
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -33,20 +42,19 @@ def run_main(capsys, *argv):
     return rc, out, err
 
 
-def colour_pixels(img, bgr) -> int:
-    return int(np.count_nonzero(np.all(img == np.array(bgr, np.uint8), axis=2)))
-
-
 # -- pure parts -------------------------------------------------------------------------------------
 
-def est(seq, d, tracking=True, v=0.2):
-    return {"seq": seq, "t_s": seq / 30, "distance_m": d, "speed_m_s": v if tracking else None,
-            "quality": 0.9 if tracking else 0.0, "tracking": tracking, "tracks": 40, "inliers": 36}
+def est(seq, d, tracking=True, v=0.2, **extra):
+    return dict({"seq": seq, "t_s": seq / 30, "distance_m": d, "speed_m_s": v if tracking else None,
+                 "quality": 0.9 if tracking else 0.0, "tracking": tracking, "tracks": 40, "inliers": 36}, **extra)
+
+
+def kinds(events):
+    return [(e.name, e.kind) for e in events]
 
 
 def test_fleet_state_marks_silent_lost_and_back():
     f = FleetState(silent_after_s=2.0)
-    kinds = lambda events: [(e.name, e.kind) for e in events]
     assert kinds(f.liveliness("a", True, now=0.0)) == [("a", "new")]
     assert kinds(f.ingest("a", "distance", est(1, 0.1), now=0.1)) == []
     assert kinds(f.ingest("b", "distance", est(1, 0.5), now=0.1)) == [("b", "new")]
@@ -74,108 +82,163 @@ def test_fleet_state_marks_silent_lost_and_back():
     assert "token but no message" in f.crawlers["c"].silent
 
 
-def test_renderer_shows_every_column_and_the_loud_marks():
+def test_fleet_state_bridged_slip_footage_and_observations_of_a_run():
+    f = FleetState()
+    f.ingest("a", "distance", est(1, 1.0, sigma_m=0.004, source="vision", footage_m=13.4, unit="ft",
+                                  direction="upstream", footage="44.0 ft", run_id="r1"), now=0.0)
+    a = f.crawlers["a"]
+    assert (a.sigma_m, a.basis, a.footage, a.unit, a.direction, a.run_id) == (0.004, "vision", "44.0 ft", "ft",
+                                                                             "upstream", "r1")
+    events = f.ingest("a", "distance", est(2, 1.1, tracking=False, v=None, bridged=True, source="model"), now=0.1)
+    assert kinds(events) == [("a", "lost"), ("a", "bridged")] and "motion model from 1.100 m" in events[1].detail
+    assert kinds(f.ingest("a", "distance", est(3, 1.2, tracking=False, bridged=True), now=0.2)) == []
+    assert kinds(f.ingest("a", "distance", est(4, 1.3, slip=True, source="fused"), now=0.3)) == [
+        ("a", "tracking"), ("a", "slip")]
+    assert a.bridged is False and a.slip is True and a.basis == "fused"
+
+    obs = {"id": 1, "run_id": "r1", "code": "FL", "clock": 3, "kind": "start", "distance_m": 1.3,
+           "footage_m": 13.7, "unit": "ft", "note": "crack"}
+    assert kinds(f.ingest("a", "observations", obs, now=0.4)) == [("a", "mark")]
+    assert f.crawlers["a"].observations[1]["code"] == "FL"
+    assert f.observation("a", dict(obs)) is False                            # the same one from a reply
+    f.ingest("a", "status", {"run_id": "r1", "observations": 3}, now=0.5)
+    assert a.missing_observations()                                          # the laptop joined late
+    f.ingest("a", "status", {"run_id": "r2", "observations": 0}, now=0.6)   # reset: a new run
+    assert a.observations == {} and not a.missing_observations()
+    assert footage_text(12.4, "m") == "12.4 m" and footage_text(12.4, "ft") == "40.7 ft"
+    assert footage_text(-0.04, "m") == "-0.0 m" and footage_text(None, "ft") == "-"
+
+
+def test_the_live_table_shows_every_column_and_the_loud_marks():
     f = FleetState()
     f.liveliness("crawler1", True, 0.0)
-    f.ingest("crawler1", "distance", est(7, 12.3456, v=0.2012), 2.5)
+    f.ingest("crawler1", "distance", est(7, 12.3456, v=0.2012, sigma_m=0.0123, source="vision", footage="40.5 ft",
+                                         footage_m=12.3456, unit="ft", direction="downstream", run_id="r"), 2.5)
     f.ingest("crawler1", "status", {"fps": 29.97, "led_level": 0.6, "source": "sim", "distance_m": 12.3,
-                                    "sim_true_distance_m": 12.2945}, 2.5)
-    f.ingest("crawler2", "distance", est(9, 3.21, tracking=False), 2.8)
+                                    "sim_true_distance_m": 12.2945, "run_id": "r", "observations": 1}, 2.5)
+    f.ingest("crawler1", "observations", {"id": 1, "run_id": "r", "code": "FL", "clock": 3, "kind": "point",
+                                          "distance_m": 12.0, "footage_m": 12.0, "unit": "ft"}, 2.5)
+    f.ingest("crawler2", "distance", est(9, 3.21, tracking=False, bridged=True, source="model", sigma_m=0.2), 2.8)
     f.ingest("crawler2", "status", {"fps": 30.0, "led_level": 0.4, "source": "camera",
                                     "last_error": "camera: frame timeout"}, 2.8)
-    f.ingest("crawler3", "distance", est(3, 1.0), 0.0)
+    f.ingest("crawler3", "distance", est(3, 1.0, slip=True, source="fused"), 0.0)
+    f.ingest("crawler4", "distance", est(3, 2.0, slip=True, source="fused"), 2.9)
     f.tick(3.0)
-    text = render(f, 3.0, key="crawler/*")
+    text = render_text(render(f, 3.0, key="crawler/*", prompt="mark crawler1: > FL_"), width=220)
     lines = text.splitlines()
-    assert lines[0].startswith("crawler-monitor  crawler/*  3 crawlers") and "!! 1 silent, 1 lost" in lines[0]
-    header = lines[2].split()
-    assert header[:3] == ["NAME", "DIST", "m"] and "SIM ERR mm".split()[0] in header and header[-1] == "STATE"
-    rows = {ln.split()[0]: ln for ln in lines[3:6]}
-    assert rows["crawler1"].split() == ["crawler1", "12.3456", "0.201", "0.90", "36/40", "30.0", "0.60", "0.5",
-                                        "sim", "5.5", "ok"]    # SIM ERR mm: 12.3 - 12.2945 m, both of the status
-    assert rows["crawler2"].split()[:10] == ["crawler2", "3.2100", "-", "0.00", "36/40", "30.0", "0.40", "0.2",
-                                             "camera", "-"]
-    assert rows["crawler2"].endswith("!! LOST 0.2 s")
-    assert rows["crawler3"].endswith("!! SILENT: no message for 3.0 s")
+    assert lines[0].startswith("crawler-monitor  crawler/*  4 crawlers") and "!! 1 silent, 1 lost" in lines[0]
+    at = next(i for i, ln in enumerate(lines) if ln.lstrip().startswith("NAME"))
+    for column in ("DISTANCE m", "FOOTAGE", "SPEED m/s", "SOURCE", "OBS", "SIM ERR mm", "STATE"):
+        assert column in lines[at]
+    rows = {ln.split()[0]: ln for ln in lines[at + 2:at + 6]}                  # under the header's rule
+    assert sorted(rows) == ["crawler1", "crawler2", "crawler3", "crawler4"]
+    assert rows["crawler1"].split() == ["crawler1", "12.3456", "±0.012", "40.5", "ft", "DS", "0.201", "0.90",
+                                        "36/40", "30.0", "0.60", "0.5", "vision/sim", "1", "5.5", "ok"]
+    assert rows["crawler2"].split()[:5] == ["crawler2", "3.2100", "±0.200", "-", "-"]
+    assert rows["crawler2"].rstrip().endswith("!! LOST 0.2 s, BRIDGED") and " model " in rows["crawler2"]
+    assert rows["crawler3"].rstrip().endswith("!! SILENT: no message for 3.0 s")
+    assert rows["crawler4"].rstrip().endswith("!! SLIP") and " fused " in rows["crawler4"]
     assert "crawler2: last error: camera: frame timeout" in text
+    assert "crawler1 #1 FL @3 39.4 ft" in text                                # the observations under the table
+    assert "mark crawler1: > FL_" in text
     assert "\x1b[" not in text
-    coloured = render(f, 3.0, color=True)
+    coloured = render_text(render(f, 3.0), width=220, color=True)
     assert "\x1b[1;37;41m!! SILENT" in coloured and "\x1b[1;30;43m!! LOST" in coloured
-    assert "waiting for crawlers on crawler/x" in render(FleetState(), 0.0, key="crawler/x")
+    narrow = render_text(render(f, 3.0, width=80), width=80)
+    assert "QUAL" not in narrow and "TRACKS" not in narrow and "…" not in narrow.split("observations:")[0]
+    assert "waiting for crawlers on crawler/x" in render_text(render(FleetState(), 0.0, key="crawler/x"))
 
 
-@pytest.mark.parametrize("suffix", [".csv", ".jsonl"])
-def test_record_writes_flushed_lines_and_reads_them_back(tmp_path, suffix):
-    path = tmp_path / f"run{suffix}"
-    w = RecordWriter(path)
-    w.write(1000.0, "c1", "alive", {"alive": True})
-    w.write(1000.5, "c1", "distance", dict(est(1, 0.25), frame=4, lateral_m=0.001))
-    w.write(1000.6, "c1", "distance", est(2, 0.25, tracking=False))
-    lines = path.read_text().splitlines()          # on disk before close: flushed per line
-    assert len(lines) == (4 if suffix == ".csv" else 3)
-    w.write(1001.0, "c1", "event", {"event": "lost", "detail": "tracking lost at 0.250 m"})
-    w.write(1001.5, "c1", "status", {"fps": 30.0, "led_level": 0.5, "camera": {"fps": 30}, "last_error": None})
-    w.close()
-    if suffix == ".csv":
-        assert lines[0] == ",".join(COLUMNS)
-    rows = read_records(path)
-    assert [r["topic"] for r in rows] == ["alive", "distance", "distance", "event", "status"]
-    assert rows[0]["alive"] is True and rows[0]["t_unix"] == 1000.0
-    assert rows[1]["distance_m"] == 0.25 and rows[1]["speed_m_s"] == 0.2 and rows[1]["tracking"] is True
-    assert rows[1]["frame"] == 4 and rows[1]["quality"] == 0.9
-    assert rows[2]["tracking"] is False and rows[2].get("speed_m_s") is None
-    assert rows[3]["event"] == "lost" and rows[4]["led_level"] == 0.5
-
-    RecordWriter(path).close()                      # appends, does not wipe
-    assert len(read_records(path)) == 5
-    with path.open("a") as f:                       # a crash mid-line: the rest is still readable
-        f.write('{"t_unix": 1002' if suffix == ".jsonl" else "2026-01-01T00:00:00.000,1002")
-    assert len(read_records(path)) == 5
-    bad = tmp_path / f"bad{suffix}"
-    bad.write_text("hello,world\n1,2\n" if suffix == ".csv" else '{"t_unix": 1}\nnot json\n{"x": 1}\n')
-    with pytest.raises(RecordError, match="bad" + suffix.replace(".", r"\.") + ":1"):
-        read_records(bad)
-    with pytest.raises(RecordError, match=".csv or .jsonl"):
-        RecordWriter(tmp_path / "run.txt")
+def test_plain_lines_name_the_new_fields():
+    line = plain_line(0.0, "c1", "distance", est(1, 0.5, sigma_m=0.002, bridged=False, source="vision",
+                                                 footage="1.6 ft"))
+    assert " c1 distance seq=1 " in line and "sigma_m=0.002" in line and "source=vision" in line
+    assert "footage='1.6 ft'" in line and "bridged=false" in line
+    obs = plain_line(0.0, "c1", "observations", {"id": 2, "code": "BAB", "clock": 12, "kind": "start",
+                                                 "note": "at the joint", "distance_m": 3.5})
+    assert obs.endswith("c1 observations id=2 distance_m=3.5 code=BAB clock=12 kind=start note='at the joint'")
 
 
-def synthetic_records(n=300):
-    rows = []
-    for i in range(n):
-        for k, name in enumerate(("alpha", "beta")):
-            tracking = not (name == "beta" and 100 <= i < 140)
-            rows.append(dict(est(i, (0.1 + 0.1 * k) * i / 30, tracking, v=0.1 + 0.1 * k),
-                             t_unix=5000 + i / 30, name=name, topic="distance"))
-    rows.append({"t_unix": 5000 + 200 / 30, "name": "alpha", "topic": "event", "event": "silent", "detail": ""})
-    return rows
+def test_the_mark_prompt_turns_keys_into_a_checked_mark():
+    assert parse_mark("FL @3 start crack at the joint") == {"code": "FL", "clock": 3, "kind": "start",
+                                                             "note": "crack at the joint"}
+    assert parse_mark("BAB f") == {"code": "BAB", "kind": "finish"}
+    assert parse_mark("TFA 12 o'clock") == {"code": "TFA", "kind": "point", "note": "12 o'clock"}
+    for bad, message in (("", "type a code"), ("FL @13", "outside 1..12"), ("F/L", "observation code")):
+        with pytest.raises(ValueError, match=message):
+            parse_mark(bad)
+
+    p = MarkPrompt()
+    assert p.feed("x", []) == [] and p.feed("m", []) == [] and "no crawler" in p.line()
+    assert p.feed("m", ["c1", "c2"]) == [] and p.active and p.target == "c1"
+    assert p.feed("\tFL @3 start\x7fx\x7f\x7frt cr", ["c1", "c2"]) == []
+    assert p.target == "c2" and p.buffer == "FL @3 start cr" and p.line().startswith("mark c2> FL @3 start cr_")
+    assert p.feed("ack\r", ["c1", "c2"]) == [Mark("c2", {"code": "FL", "clock": 3, "kind": "start",
+                                                        "note": "crack"})]
+    assert not p.active and p.line() == ""
+    assert p.feed("mFL @0\r", ["c1", "c2"]) == [] and p.active and "outside 1..12" in p.line()
+    assert p.feed("\x1bq", ["c1"]) == [Quit()] and not p.active                # Esc cancels, q quits
+    assert mark_args("FL") == {"code": "FL", "kind": "point"}
+    assert preset_args(40.0, "ft") == {"distance_m": 12.192} and preset_args(12.4, None) == {"distance": 12.4}
 
 
-def test_plot_draws_two_panels_one_line_per_crawler_and_shades_lost_tracking():
-    img = plot_records(synthetic_records(), size=(1000, 700))
-    assert img.shape == (700, 1000, 3) and img.dtype == np.uint8
-    for i in range(2):
-        assert colour_pixels(img, line_color(i)) > 500, f"line {i} missing"
-    assert colour_pixels(img, line_color(2)) == 0
-    # the lost stretch of beta (t 3.33..4.67 s) is tinted with its colour, a tracked moment is white
-    beta = np.array(line_color(1), float)
-    col_lost = img[150:250, int(80 + (1000 - 104) * 4.0 / 10)].astype(float)
-    col_ok = img[150:250, int(80 + (1000 - 104) * 8.6 / 10)].astype(float)
-    assert np.median(np.linalg.norm(col_lost - beta, axis=1)) < np.median(np.linalg.norm(col_ok - beta, axis=1))
-    assert nice_ticks(0, 9.97) == [0, 2, 4, 6, 8] and nice_ticks(-0.03, 0.32) == [0.0, 0.1, 0.2, 0.3]
+def test_the_keyboard_reads_a_real_terminal_and_nothing_else():
+    master, slave = pty.openpty()
+    try:
+        before = termios.tcgetattr(slave)
+        with Keyboard(slave) as keys:
+            assert keys.enabled
+            attrs = termios.tcgetattr(slave)
+            assert not attrs[3] & termios.ICANON and not attrs[3] & termios.ECHO and attrs[3] & termios.ISIG
+            assert keys.read() == ""                                           # nothing typed: no wait
+            os.write(master, b"mFL\r")
+            got = ""
+            end = time.monotonic() + 2
+            while "\n" not in got and time.monotonic() < end:
+                got += keys.read()
+            assert got == "mFL\n"                                           # the tty maps Enter to \n
+        assert termios.tcgetattr(slave) == before                               # the terminal restored
+    finally:
+        os.close(master)
+        os.close(slave)
+    r, w = os.pipe()
+    try:
+        os.write(w, b"q")
+        with Keyboard(r) as keys:                                               # a pipe is no keyboard
+            assert not keys.enabled and keys.read() == ""
+    finally:
+        os.close(r)
+        os.close(w)
 
 
 # -- arguments --------------------------------------------------------------------------------------
 
 def test_the_default_command_is_watch():
     p = build_parser()
-    assert with_default_command([], p) == ["watch"]
-    assert with_default_command(["--name", "status", "--record", "x.csv"], p)[0] == "watch"
-    assert with_default_command(["--connect", "tcp/h:1", "reset", "c1"], p) == ["--connect", "tcp/h:1", "reset", "c1"]
-    args = p.parse_args(with_default_command(["--no-multicast", "led", "c1", "0.5", "--connect", "tcp/h:1"], p))
+
+    def parse(argv):
+        args = p.parse_args(argv)
+        args.command = args.command or "watch"
+        return args
+
+    assert parse([]).command == "watch"
+    args = parse(["--name", "status", "--record", "x.csv"])
+    assert (args.command, args.name, args.record) == ("watch", "status", "x.csv")
+    assert parse(["--foxglove", "--foxglove-port", "9000"]).foxglove_port == 9000
+    args = parse(["--connect", "tcp/h:1", "reset", "c1"])
+    assert (args.command, args.name, args.connect) == ("reset", "c1", ["tcp/h:1"])
+    args = parse(["--no-multicast", "led", "c1", "0.5", "--connect", "tcp/h:1"])
     assert (args.command, args.name, args.level, args.connect, args.no_multicast, args.timeout) == (
         "led", "c1", 0.5, ["tcp/h:1"], True, 3.0)
-    args = p.parse_args(with_default_command(["--record", "r.jsonl"], p))
-    assert (args.command, args.name, args.record, args.zenoh_mode, args.connect) == ("watch", "*", "r.jsonl", None, [])
+    args = parse(["--record", "r.jsonl", "--foxglove"])
+    assert (args.command, args.name, args.record, args.foxglove, args.foxglove_port) == ("watch", "*", "r.jsonl",
+                                                                                         True, 8765)
+    args = parse(["--record", "r.jsonl", "watch", "--plain"])         # before and after the command
+    assert (args.command, args.record, args.plain) == ("watch", "r.jsonl", True)
+    args = p.parse_args(["mark", "c1", "FL", "--clock", "3", "--finish", "--note", "a; b = c"])
+    assert (args.code, args.clock, args.start, args.finish, args.note) == ("FL", 3, False, True, "a; b = c")
+    args = p.parse_args(["preset", "c1", "-3.5", "--unit", "ft"])
+    assert (args.distance, args.unit) == (-3.5, "ft")
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -184,14 +247,30 @@ def test_the_default_command_is_watch():
     (["led", "c1"], "LEVEL"),
     (["reset", "c*"], "crawler name 'c*'"),
     (["reset", "*"], "crawler name '*'"),
+    (["mark", "*", "FL"], "crawler name '*'"),
+    (["zero", "a/b"], "crawler name 'a/b'"),
+    (["preset", "c1", "12,40"], "DISTANCE: '12,40' is not a distance"),
+    (["preset", "c1", "nan"], "DISTANCE: 'nan' is not a plausible distance"),
+    (["preset", "c1", "1", "--unit", "yd"], "invalid choice: 'yd'"),
+    (["units", "c1", "mm"], "invalid choice: 'mm'"),
+    (["direction", "c1", "sideways"], "invalid choice: 'sideways'"),
+    (["mark", "c1", "F L"], "observation code 'F L'"),
+    (["mark", "c1", "FL", "--clock", "0"], "clock 0 is outside 1..12"),
+    (["mark", "c1", "FL", "--start", "--finish"], "not allowed with argument --start"),
+    (["mark", "c1", "FL", "--note", "x" * 201], "at most 200 characters"),
     (["plot", "{tmp}/missing.csv"], "no such record file"),
     (["plot", "{tmp}/garbage.csv"], "garbage.csv:1: not a crawler-monitor CSV"),
     (["plot", "{tmp}/garbage.jsonl"], "garbage.jsonl:1: not a JSON line"),
-    (["plot", "{tmp}/empty.csv"], "nothing to plot in {tmp}/empty.csv: the record is empty"),
-    (["plot", "{tmp}/alive.jsonl"], "alive.jsonl: the record has no distance messages"),
-    (["plot", "{tmp}/empty.csv", "-o", "{tmp}/x.jpg"], "the plot is a .png"),
-    (["--record", "{tmp}/run.txt"], "suffix must be .csv or .jsonl"),
+    (["plot", "{tmp}/garbage.mcap"], "garbage.mcap: not an MCAP file"),
+    (["plot", "{tmp}/empty.csv"], "nothing to plot: the record is empty"),
+    (["plot", "{tmp}/alive.jsonl"], "nothing to plot: the record has no distance messages"),
+    (["plot", "{tmp}/empty.csv", "-o", "{tmp}/x.jpg"], "the output is .png, .svg, .pdf"),
+    (["plot", "{tmp}/empty.csv", "-o", "{tmp}/nope/x.png"], "no folder"),
+    (["report", "{tmp}/empty.csv", "-o", "{tmp}/x.pdf"], "the output is .html, .csv"),
+    (["--record", "{tmp}/run.txt"], "suffix must be .csv, .jsonl or .mcap"),
+    (["--record", "{tmp}/old.mcap"], "an MCAP file cannot be appended to"),
     (["--duration", "-1"], "--duration: '-1' must be more than 0 s"),
+    (["--foxglove-port", "http"], "'http' is not a TCP port"),
     (["--name", "a/b"], "crawler name 'a/b'"),
     (["--connect", "not-an-endpoint", "--duration", "1"], "not-an-endpoint"),
     (["--zenoh-config", "{tmp}/nope.json5", "status", "c1"], "no such file"),
@@ -200,6 +279,8 @@ def test_the_default_command_is_watch():
 def test_bad_arguments_are_one_line_and_exit_2(tmp_path, capsys, argv, message):
     (tmp_path / "garbage.csv").write_text("\x00\x01 what\n")
     (tmp_path / "garbage.jsonl").write_text("{{{\n")
+    (tmp_path / "garbage.mcap").write_bytes(b"PK\x03\x04 a zip file")
+    (tmp_path / "old.mcap").write_bytes(b"\x89MCAP0\r\n")
     (tmp_path / "empty.csv").write_text(",".join(COLUMNS) + "\n")
     (tmp_path / "alive.jsonl").write_text('{"t_unix": 1.0, "name": "c1", "topic": "alive", "data": {"alive": true}}\n')
     message = message.format(tmp=tmp_path)
@@ -211,72 +292,28 @@ def test_bad_arguments_are_one_line_and_exit_2(tmp_path, capsys, argv, message):
 
 # -- on the network ---------------------------------------------------------------------------------
 
-class Direct:
-    """The daemon's command queue, answered at once (no frame loop here)."""
-
-    def __init__(self, handle):
-        self.handle = handle
-
-    def submit(self, request, timeout_s=None):
-        return self.handle(request)
-
-
-class FakeDaemons:
-    """Two crawlers, each a ZenohLink listening on its own loopback port; `handled` logs commands."""
+class Fleet:
+    """Two emulated daemons, c1 and c2, publishing at 50 Hz from a thread once started."""
 
     def __init__(self):
-        from crawler.link import ZenohLink, make_zenoh_config
-
-        self.handled = []
-        self.ports = [free_port(), free_port()]
-        self.links = {}
-        for name, port in zip(("c1", "c2"), self.ports):
-            conf = make_zenoh_config("peer", listen=[f"tcp/127.0.0.1:{port}"], multicast=False)
-            self.links[name] = ZenohLink(name, conf, commands=Direct(self._handler(name))).open()
-        self.flags = ["--no-multicast"] + [f"--connect=tcp/127.0.0.1:{p}" for p in self.ports]
-        self.published = {"c1": [], "c2": []}
+        self.c1 = FakeCrawler("c1", free_port(), speed_m_s=0.5)
+        self.c2 = FakeCrawler("c2", free_port(), speed_m_s=1.0, refuse=("led",))
+        self.flags = ["--no-multicast"] + [f"--connect=tcp/127.0.0.1:{c.port}" for c in (self.c1, self.c2)]
         self._stop = threading.Event()
         self._thread = None
+        self.c2_open = True
 
-    def _handler(self, name):
-        def handle(request):
-            self.handled.append((name, request))
-            cmd = request["cmd"]
-            if cmd == "reset":
-                return {"cmd": "reset", "distance_m": 0.0, "run_id": f"{name}-run2"}
-            if cmd == "led":
-                if name == "c2":
-                    raise RuntimeError("crawler busy: no answer within 2 s (is the camera delivering frames?)")
-                return {"cmd": "led", "level": float(request["level"])}
-            if cmd == "status":
-                return {"name": name, "source": "sim", "fps": 30.0, "led_level": 0.5}
-            raise ValueError(f"unknown cmd {cmd!r}; use reset, led or status")
-        return handle
-
-    def publish(self, name, frame, tracking=True):
-        k = 1 if name == "c1" else 2
-        e = {"name": name, "frame": frame, "t_s": frame / 50, "distance_m": round(0.01 * k * frame, 6),
-             "speed_m_s": 0.5 * k if tracking else None, "quality": 0.9 if tracking else 0.0,
-             "tracking": tracking, "tracks": 40, "inliers": 36 if tracking else 0, "lateral_m": 0.0}
-        link = self.links[name]
-        link.publish_estimate(e)
-        self.published[name].append(dict(e, seq=link.seq))
-        if frame % 10 == 0:
-            link.publish_status({"name": name, "source": "sim", "fps": 50.0, "frames": frame,
-                                 "led_level": 0.5, "last_error": None})
-
-    def start(self, script):
-        """Publish both at 50 Hz in a thread; script(elapsed) -> (c1 tracking, c2 still running)."""
+    def start(self, script=lambda: ({}, True)):
+        """script() -> (c1's publish flags, c2 still running), asked before every frame."""
         def loop():
-            frame = 0
             while not self._stop.is_set():
-                frame += 1
-                c1_tracking, c2_on = script()
-                self.publish("c1", frame, c1_tracking)
+                flags, c2_on = script()
+                self.c1.publish(**flags)
                 if c2_on:
-                    self.publish("c2", frame)
-                elif self.links["c2"].connected:
-                    self.links["c2"].close()           # its token goes: the monitor must say SILENT
+                    self.c2.publish()
+                elif self.c2_open:
+                    self.c2_open = False
+                    self.c2.close()                  # its token goes: the monitor must say SILENT
                 time.sleep(0.02)
         self._thread = threading.Thread(target=loop, daemon=True)
         self._thread.start()
@@ -285,112 +322,191 @@ class FakeDaemons:
         self._stop.set()
         if self._thread:
             self._thread.join(5)
-        for link in self.links.values():
-            link.close()
+        self.c1.close()
+        if self.c2_open:
+            self.c2.close()
 
 
 @pytest.fixture
-def daemons():
-    d = FakeDaemons()
+def fleet():
+    f = Fleet()
     try:
-        yield d
+        yield f
     finally:
-        d.close()
+        f.close()
 
 
-def test_watch_records_two_crawlers_marks_silent_and_lost_and_plots(daemons, tmp_path, capsys):
+def test_watch_records_two_crawlers_marks_silent_lost_bridged(fleet, tmp_path, capsys):
     record = tmp_path / "run.csv"
     both_since = []
 
     def script():
-        """After the monitor has both crawlers: c1 loses tracking 0.2..0.6 s, c2 stops at 1.0 s."""
+        """Once the monitor has both: c1 loses tracking 0.2..0.4 s, is bridged 0.4..0.6 s; c2 stops at 1 s."""
         if not both_since:
             text = record.read_text() if record.exists() else ""
             if ",c1,distance," in text and ",c2,distance," in text:
                 both_since.append(time.monotonic())
-            return True, True
+            return {}, True
         phase = time.monotonic() - both_since[0]
-        return not 0.2 <= phase < 0.6, phase < 1.0
+        return {"tracking": not 0.2 <= phase < 0.6, "bridged": 0.4 <= phase < 0.6}, phase < 1.0
 
-    daemons.start(script)
+    fleet.start(script)
     t0 = time.monotonic()
-    rc, out, err = run_main(capsys, "watch", *daemons.flags, "--record", record, "--duration", 2.5)
+    rc, out, err = run_main(capsys, "watch", *fleet.flags, "--record", record, "--duration", 2.5)
     assert rc == 0, err
     assert 2.4 < time.monotonic() - t0 < 6
     assert both_since, "the monitor never received both crawlers"
     assert "recorded" in err and str(record) in err
 
     rows = read_records(record)
-    for name in ("c1", "c2"):
-        got = [r for r in rows if r["name"] == name and r["topic"] == "distance"]
-        sent = {p["seq"]: p for p in daemons.published[name]}
-        assert len(got) > 20, name
+    for crawler in (fleet.c1, fleet.c2):
+        got = [r for r in rows if r["name"] == crawler.name and r["topic"] == "distance"]
+        sent = {p["seq"]: p for p in crawler.published}
+        assert len(got) > 20, crawler.name
         seqs = [int(r["seq"]) for r in got]
-        assert seqs == list(range(seqs[0], seqs[-1] + 1)), f"{name}: lost messages on loopback"
+        assert seqs == list(range(seqs[0], seqs[-1] + 1)), f"{crawler.name}: lost messages on loopback"
         for r in got:                               # every value as published
             p = sent[int(r["seq"])]
-            for key in ("frame", "t_s", "distance_m", "speed_m_s", "quality", "tracking", "tracks", "inliers"):
-                assert r.get(key) == p[key], (name, key, r, p)
-        speeds = [r for r in rows if r["name"] == name and r["topic"] == "speed"]
-        assert len(speeds) >= len(got) - 2
-        assert any(r["topic"] == "status" and r["fps"] == 50.0 for r in rows if r["name"] == name)
+            for key in ("frame", "t_s", "distance_m", "sigma_m", "speed_m_s", "quality", "tracking", "bridged",
+                        "slip", "source", "footage_m", "unit", "direction", "footage", "run_id"):
+                assert r.get(key) == p[key], (crawler.name, key, r, p)
+        assert any(r["topic"] == "status" and r["fps"] == 50.0 for r in rows if r["name"] == crawler.name)
 
     events = [(r["name"], r["event"], r.get("detail", "")) for r in rows if r["topic"] == "event"]
     assert ("c2", "silent", "liveliness token gone") in events
     assert not any(n == "c1" and e == "silent" for n, e, _ in events)
-    assert any(n == "c1" and e == "lost" for n, e, _ in events)
-    assert any(n == "c1" and e == "tracking" for n, e, _ in events)
-    assert {"name": "c2", "alive": False} in [{k: r[k] for k in ("name", "alive")} for r in rows if r["topic"] == "alive"]
-    lost_rows = [r for r in rows if r["name"] == "c1" and r["topic"] == "distance" and not r["tracking"]]
-    assert lost_rows and all("speed_m_s" not in r and r["quality"] == 0.0 for r in lost_rows)
+    for kind in ("lost", "bridged", "tracking"):
+        assert any(n == "c1" and e == kind for n, e, _ in events), kind
+    bridged = [r for r in rows if r["name"] == "c1" and r["topic"] == "distance" and r["bridged"]]
+    held = [r for r in rows if r["name"] == "c1" and r["topic"] == "distance" and not r["tracking"]
+            and not r["bridged"]]
+    assert bridged and all(r["source"] == "model" for r in bridged)
+    assert held and all("speed_m_s" not in r and r["quality"] == 0.0 for r in held)
 
-    # stdout is not a terminal here: one plain line per update, and the loud marks
-    lines = out.splitlines()
-    assert any(" c1 distance seq=" in ln and "distance_m=" in ln for ln in lines)
+    lines = out.splitlines()                        # not a terminal: one plain line per update
+    assert any(" c1 distance seq=" in ln and "sigma_m=" in ln for ln in lines)
     assert any(ln.endswith("c2 SILENT liveliness token gone") for ln in lines)
-    assert any(" c1 LOST tracking lost at " in ln for ln in lines)
+    assert any(" c1 BRIDGED distance carried by the motion model" in ln for ln in lines)
     assert "\x1b[" not in out
 
-    png = tmp_path / "run.png"
-    rc, out, err = run_main(capsys, "plot", record, "-o", png)
-    assert rc == 0, err
-    assert "2 crawler(s) c1, c2" in out
-    img = cv2.imread(str(png))
-    assert img is not None and img.shape == (800, 1200, 3)
-    assert colour_pixels(img, line_color(0)) > 300 and colour_pixels(img, line_color(1)) > 300
 
+def test_every_command_round_trips_on_its_own_key(fleet, capsys):
+    net = fleet.flags
+    fleet.start()
 
-def test_control_commands_round_trip(daemons, capsys):
-    net = daemons.flags
-    rc, out, err = run_main(capsys, "reset", "c1", *net)
-    assert rc == 0, err
-    assert json.loads(out) == {"ok": True, "cmd": "reset", "distance_m": 0.0, "run_id": "c1-run2"}
-    rc, out, err = run_main(capsys, *net, "led", "c1", "0.4")
-    assert rc == 0 and json.loads(out) == {"ok": True, "cmd": "led", "level": 0.4}
-    rc, out, err = run_main(capsys, "status", "c2", *net)
-    assert rc == 0 and json.loads(out)["name"] == "c2"
-    rc, out, err = run_main(capsys, "status", "*", *net)
-    assert rc == 0 and sorted(json.loads(ln)["name"] for ln in out.splitlines()) == ["c1", "c2"]
-    assert ("c1", {"cmd": "led", "level": "0.4"}) in daemons.handled
+    def ask(*argv):
+        rc, out, err = run_main(capsys, *argv, *net)
+        assert rc == 0, err
+        return [json.loads(ln) for ln in out.splitlines()]
+
+    assert ask("reset", "c1") == [{"ok": True, "cmd": "reset", "distance_m": 0.0, "run_id": "c1-run2"}]
+    assert ask("led", "c1", "0.4") == [{"ok": True, "cmd": "led", "level": 0.4}]
+    assert ask("zero", "c1")[0]["footage_m"] == 0.0
+    assert ask("units", "c1", "ft")[0]["unit"] == "ft"
+    reply = ask("preset", "c1", "40.0")[0]                         # in the crawler's unit: feet
+    assert reply["footage"] == "40.0 ft" and reply["footage_m"] == pytest.approx(12.192)
+    assert ask("preset", "c2", "12.4", "--unit", "m")[0]["footage_m"] == pytest.approx(12.4)
+    assert ask("direction", "c1", "upstream")[0]["direction"] == "upstream"
+    mark = ask("mark", "c1", "BAB", "--clock", "3", "--start", "--note", "crack; at = the joint")[0]
+    obs = mark["observation"]
+    assert (obs["code"], obs["clock"], obs["kind"], obs["note"], obs["unit"]) == (
+        "BAB", 3, "start", "crack; at = the joint", "ft")
+    assert obs["run_id"] == "c1-run2" and obs["distance_m"] > 0
+    ask("mark", "c1", "BAB", "--finish")
+    listed = ask("observations", "c1")[0]["observations"]
+    assert [(o["id"], o["kind"]) for o in listed] == [(1, "start"), (2, "finish")]
+    assert ask("status", "c2")[0]["name"] == "c2"
+    assert sorted(s["name"] for s in ask("status", "*")) == ["c1", "c2"]              # one reply each
+    assert sorted(len(r["observations"]) for r in ask("observations", "*")) == [0, 2]
+    verbs = [verb for verb, _ in fleet.c1.handled]
+    assert verbs == ["reset", "led", "zero", "units", "preset", "direction", "mark", "mark", "observations",
+                     "status", "observations"]
+    assert ("led", {"level": 0.4}) in fleet.c1.handled
+    assert ("preset", {"distance_m": 12.4}) in fleet.c2.handled
 
     rc, out, err = run_main(capsys, "led", "c2", "0.3", *net)          # the daemon says no
     assert rc == 1 and out == ""
     assert err == ("crawler-monitor: error: crawler c2 refused led: crawler busy: no answer within 2 s "
                    "(is the camera delivering frames?)\n")
-
     t0 = time.monotonic()
-    rc, out, err = run_main(capsys, "reset", "c9", "--timeout", "0.5", *net)   # nobody there
+    rc, out, err = run_main(capsys, "zero", "c9", "--timeout", "0.5", *net)   # nobody there
     assert rc == 1 and out == "" and 0.4 < time.monotonic() - t0 < 3
-    assert err.startswith("crawler-monitor: error: no crawler named 'c9' answered reset within 0.5 s")
-    assert err.count("\n") == 1
+    assert err == ("crawler-monitor: error: no crawler named 'c9' answered zero within 0.5 s on "
+                   "crawler/c9/cmd/zero (is crawlerd running, and can this laptop reach it? try --connect "
+                   "tcp/IP:7447)\n")
+
+
+class Tty(io.StringIO):
+    """The live view's screen: a terminal as far as the monitor can tell."""
+
+    def isatty(self):
+        return True
+
+
+def test_a_mark_typed_in_the_live_view_reaches_the_daemon_and_the_record(fleet, tmp_path, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "160")                 # the width rich gives the screen
+    fleet.start()
+    record = tmp_path / "run.jsonl"
+    args = build_parser().parse_args(["watch", "--record", str(record), *fleet.flags, "--name", "c1"])
+    master, slave = pty.openpty()
+    screen = Tty()
+    watch = Watch(args, out=screen, keyboard=Keyboard(slave))
+    stop = threading.Event()
+
+    def operator():
+        assert wait_for(lambda: "c1" in watch.fleet.crawlers, timeout=15)
+        os.write(master, b"mFL @3 start crack at the joint")
+        time.sleep(0.6)                                   # the view redraws the prompt as it is typed
+        os.write(master, b"\r")
+        assert wait_for(lambda: watch.fleet.crawlers["c1"].observations, timeout=10)
+        time.sleep(0.3)                                   # one more redraw with the observation
+        os.write(master, b"q")
+
+    typist = threading.Thread(target=operator)
+    session = open_session(args)
+    try:
+        typist.start()
+        t0 = time.monotonic()
+        watch.run(session, stop=stop.is_set)
+        assert time.monotonic() - t0 < 25, "q did not end the watch"
+    finally:
+        typist.join(10)
+        session.close()
+        watch.close()
+        os.close(master)
+        os.close(slave)
+    assert ("mark", {"code": "FL", "clock": 3, "kind": "start", "note": "crack at the joint"}) in fleet.c1.handled
+    observations = [r for r in read_records(record) if r["topic"] == "observations"]
+    assert {(o["code"], o["clock"], o["kind"]) for o in observations} == {("FL", 3, "start")}
+    raw = screen.getvalue()
+    assert "\x1b[?25l" in raw and raw.rstrip().endswith("\x1b[?25h")      # cursor hidden, then back
+    text = " ".join(re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", raw).split())
+    assert "mark c1> FL @3 start crack at the joint_" in text               # the prompt as it was typed
+    assert "c1 #1 FL @3 start" in text and "m mark q quit" in text
+
+
+def test_a_laptop_that_joins_late_gets_the_runs_observations(fleet, tmp_path, capsys):
+    for _ in range(5):
+        fleet.c1.publish()
+    fleet.c1.mark({"code": "CL", "clock": 12})
+    fleet.c1.mark({"code": "FL", "kind": "start", "note": "before the laptop"})
+    fleet.start()
+    record = tmp_path / "late.csv"
+    rc, out, err = run_main(capsys, *fleet.flags, "--name", "c1", "--record", record, "--duration", 1.5)
+    assert rc == 0, err
+    got = [r for r in read_records(record) if r["topic"] == "observations"]
+    assert [(r["id"], r["code"]) for r in got] == [("1", "CL"), ("2", "FL")]
+    assert ("observations", {}) in fleet.c1.handled
+    assert " c1 MARK #1 CL @12 " in out
 
 
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
-def test_a_signal_ends_the_watch_cleanly_and_keeps_the_record(daemons, tmp_path, signum):
-    daemons.start(lambda: (True, True))
+def test_a_signal_ends_the_watch_cleanly_and_keeps_the_record(fleet, tmp_path, signum):
+    fleet.start()
     record = tmp_path / "run.jsonl"
-    proc = subprocess.Popen([sys.executable, "-m", "crawler.monitor", *daemons.flags, "--record", str(record)],
-                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "crawler.monitor", *fleet.flags, "--record", str(record)],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            stdin=subprocess.DEVNULL)
     try:
         assert wait_for(lambda: record.exists() and record.read_text().count('"distance"') > 5, timeout=15)
         proc.send_signal(signum)
@@ -405,54 +521,66 @@ def test_a_signal_ends_the_watch_cleanly_and_keeps_the_record(daemons, tmp_path,
     assert {r["name"] for r in rows} == {"c1", "c2"}
 
 
+def _crawlerd_sim(tmp_path, port, frames):
+    return subprocess.Popen([sys.executable, "-m", "crawler", "--sim", "--no-multicast",
+                             "--listen", f"tcp/127.0.0.1:{port}", "--max-frames", str(frames),
+                             "--state-dir", str(tmp_path / "state")],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
 def test_the_whole_loop_with_crawlerd_sim(tmp_path, capsys):
-    """crawlerd --sim on loopback. The monitor records it until it stops (its token goes: SILENT) while,
-    as an operator would, a second crawler-monitor process asks its status, resets it and sets its LED."""
+    """crawlerd --sim on loopback: the monitor records it until it stops (its token goes: SILENT)."""
     port = free_port()
-    record = tmp_path / "sim.jsonl"
-    net = ["--no-multicast", "--connect", f"tcp/127.0.0.1:{port}"]
-    daemon = subprocess.Popen([sys.executable, "-m", "crawler", "--sim", "--no-multicast",
-                               "--listen", f"tcp/127.0.0.1:{port}", "--max-frames", "240",
-                               "--state-dir", str(tmp_path / "state")],
-                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    replies = {}
-
-    def operator():
-        for argv in (["status", "crawler1", "--timeout", "10"], ["reset", "crawler1"], ["led", "crawler1", "0.3"]):
-            p = subprocess.run([sys.executable, "-m", "crawler.monitor", *argv, *net], cwd=ROOT,
-                               capture_output=True, text=True, timeout=30)
-            replies[argv[0]] = (p.returncode, p.stdout, p.stderr)
-
-    commands = threading.Thread(target=operator)
+    record = tmp_path / "sim.mcap"
+    daemon = _crawlerd_sim(tmp_path, port, 180)
     try:
-        commands.start()
-        rc, out, err = run_main(capsys, *net, "--record", record, "--duration", 8)
+        rc, out, err = run_main(capsys, "--no-multicast", "--connect", f"tcp/127.0.0.1:{port}", "--record",
+                                record, "--duration", 7)
         assert rc == 0, err
-        commands.join(30)
         d_out, d_err = daemon.communicate(timeout=30)
     finally:
         if daemon.poll() is None:
             daemon.kill()
             daemon.communicate()
     assert daemon.returncode == 0, d_err
-    for cmd, (code, stdout, stderr) in replies.items():
-        assert code == 0, (cmd, stderr)
-    status = json.loads(replies["status"][1])
-    assert status["ok"] is True and status["name"] == "crawler1" and status["source"] == "sim"
-    assert json.loads(replies["reset"][1])["distance_m"] == 0.0
-    assert json.loads(replies["led"][1]) == {"ok": True, "cmd": "led", "level": 0.3}
-
     rows = read_records(record)
     dist = [r["distance_m"] for r in rows if r["topic"] == "distance" and r["name"] == "crawler1"]
     assert len(dist) > 30, d_err
-    drops = [i for i in range(1, len(dist)) if dist[i] < dist[i - 1] - 0.01]
-    assert len(drops) <= 1 and all(dist[i] < 0.05 for i in drops)      # forward, except at the reset
+    assert all(b >= a - 1e-9 for a, b in zip(dist, dist[1:]))             # forward all the way
     stats = [r for r in rows if r["topic"] == "status"]
     assert stats and all(r["source"] == "sim" and r["sim_true_distance_m"] is not None for r in stats)
     assert any(r["topic"] == "event" and r["event"] == "silent" and r["detail"] == "liveliness token gone"
                for r in rows), "the daemon stopped but the monitor did not mark it silent"
     assert " crawler1 SILENT liveliness token gone" in out
     rc, out, err = run_main(capsys, "plot", record, "-o", tmp_path / "sim.png")
-    assert rc == 0, err
-    img = cv2.imread(str(tmp_path / "sim.png"))
-    assert img is not None and colour_pixels(img, line_color(0)) > 300
+    assert rc == 0 and "1 crawler(s) crawler1" in out, err
+
+
+@pytest.mark.xfail(strict=True, reason="crawlerd answers on crawler/<name>/status and cmd/<verb> once the "
+                                       "daemon side of issue 15 lands: then remove this mark")
+def test_commands_reach_crawlerd_sim(tmp_path, capsys):
+    port = free_port()
+    net = ["--no-multicast", "--connect", f"tcp/127.0.0.1:{port}"]
+    daemon = _crawlerd_sim(tmp_path, port, 600)
+    try:
+        rc, out, err = run_main(capsys, "status", "crawler1", "--timeout", "6", *net)
+        assert rc == 0 and json.loads(out)["name"] == "crawler1", err
+        for argv in (["zero", "crawler1"], ["units", "crawler1", "ft"], ["preset", "crawler1", "40"],
+                     ["mark", "crawler1", "FL", "--clock", "3"], ["led", "crawler1", "0.3"], ["reset", "crawler1"]):
+            rc, out, err = run_main(capsys, *argv, *net)
+            assert rc == 0 and json.loads(out)["ok"] is True, (argv, err)
+    finally:
+        daemon.kill()
+        daemon.communicate()
+
+
+def test_the_live_view_without_rich_says_how_to_install_it_before_zenoh_opens(monkeypatch):
+    from crawler.monitor.deps import MissingExtra
+
+    for name in [m for m in sys.modules if m == "rich" or m.startswith("rich.")]:
+        monkeypatch.setitem(sys.modules, name, None)
+    monkeypatch.setitem(sys.modules, "rich", None)
+    args = build_parser().parse_args(["watch"])
+    with pytest.raises(MissingExtra, match=r"the live view needs rich .*pip install 'crawlerd\[monitor\]'.*--plain"):
+        Watch(args, out=Tty())
+    Watch(build_parser().parse_args(["watch", "--plain"]), out=Tty()).close()      # plain needs no rich

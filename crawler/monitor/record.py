@@ -1,14 +1,16 @@
-"""The monitor's record: every message it received, one line each, flushed as written.
+"""The monitor's record: every message it received, one line (or MCAP message) each, flushed as written.
 
-Two formats, chosen by the file's suffix:
+Three formats, chosen by the file's suffix:
   .csv    one row per message, the fixed COLUMNS below (a field a topic does not carry is empty),
           booleans as 1/0, so a spreadsheet opens it as is
   .jsonl  {"time", "t_unix", "name", "topic", "data"}: `data` is the payload exactly as received
+  .mcap   MCAP with a JSON Schema per topic (mcap_record.py), for Foxglove and the robotics tools
 
-Topics: distance, speed, status (the daemon's payloads), alive (liveliness: data {"alive": bool}) and
-event (the monitor's own marks: data {"event": "silent"|"back"|"lost"|"tracking"|"new", "detail"}).
-A file that exists is appended to (a restarted monitor must not wipe the record of the morning);
-`t_unix` keeps the runs apart.
+Topics: distance, speed, status, observations (the daemon's payloads), alive (liveliness: data
+{"alive": bool}) and event (the monitor's own marks: data {"event": "silent"|"back"|..., "detail"}).
+A CSV or JSONL file that exists is appended to (a restarted monitor must not wipe the record of the
+morning); `t_unix` keeps the runs apart. An observation's own `t_unix` (when the daemon stamped it)
+is read back as `observed_t_unix`, since `t_unix` is always the arrival at the laptop.
 """
 
 from __future__ import annotations
@@ -23,14 +25,17 @@ from pathlib import Path
 from ..errors import CrawlerError
 from .view import iso
 
-SUFFIXES = (".csv", ".jsonl")
+SUFFIXES = (".csv", ".jsonl", ".mcap")
 COLUMNS = ("time", "t_unix", "name", "topic",
-           "seq", "frame", "t_s", "distance_m", "speed_m_s", "quality", "tracking", "tracks", "inliers", "lateral_m",
-           "fps", "frames", "uptime_s", "led_level", "source", "run_id", "last_error", "sim_true_distance_m",
+           "seq", "frame", "t_s", "distance_m", "sigma_m", "speed_m_s", "quality", "tracking", "bridged", "slip",
+           "tracks", "inliers", "lateral_m", "wheel_distance_m", "wheel_scale", "footage_m", "unit", "direction",
+           "footage", "fps", "frames", "uptime_s", "led_level", "source", "run_id", "last_error", "observations",
+           "sim_true_distance_m", "id", "observed_t_unix", "code", "clock", "kind", "note",
            "alive", "event", "detail")
 _PAYLOAD_COLUMNS = COLUMNS[4:]
-_BOOL = {"tracking", "alive"}
-_TEXT = {"time", "name", "topic", "source", "run_id", "last_error", "event", "detail"}
+_BOOL = {"tracking", "alive", "bridged", "slip"}
+_TEXT = {"time", "name", "topic", "source", "run_id", "last_error", "event", "detail", "unit", "direction",
+         "footage", "code", "kind", "note", "id"}
 
 
 class RecordError(CrawlerError, ValueError):
@@ -40,8 +45,27 @@ class RecordError(CrawlerError, ValueError):
 def record_format(path: str | Path) -> str:
     suffix = Path(path).suffix.lower()
     if suffix not in SUFFIXES:
-        raise RecordError(f"record file {str(path)!r}: the suffix must be .csv or .jsonl (it picks the format)")
+        raise RecordError(f"record file {str(path)!r}: the suffix must be .csv, .jsonl or .mcap (it picks the "
+                          "format)")
     return suffix[1:]
+
+
+def open_record(path: str | Path):
+    """The writer for `path`'s format: RecordWriter (CSV, JSONL) or McapRecordWriter."""
+    if record_format(path) == "mcap":
+        from .mcap_record import McapRecordWriter
+
+        return McapRecordWriter(path)
+    return RecordWriter(path)
+
+
+def flat(t_unix: float, name: str, topic: str, data: dict) -> dict:
+    """A message as one flat row {t_unix, name, topic, <payload fields>}, as read_records returns it."""
+    row = dict(data)
+    if topic == "observations" and "t_unix" in row:
+        row["observed_t_unix"] = row.pop("t_unix")
+    row.update(t_unix=t_unix, name=name, topic=topic)
+    return row
 
 
 class RecordWriter:
@@ -71,8 +95,9 @@ class RecordWriter:
 
     def write(self, t_unix: float, name: str, topic: str, data: dict):
         if self.format == "csv":
+            fields = flat(t_unix, name, topic, data)
             row = {"time": iso(t_unix), "t_unix": f"{t_unix:.3f}", "name": name, "topic": topic}
-            row.update((k, _cell(data[k])) for k in _PAYLOAD_COLUMNS if k in data)
+            row.update((k, _cell(fields[k])) for k in _PAYLOAD_COLUMNS if k in fields)
             self._csv.writerow([row.get(k, "") for k in COLUMNS])
         else:
             self._f.write(json.dumps({"time": iso(t_unix), "t_unix": round(t_unix, 3), "name": name,
@@ -112,6 +137,10 @@ def read_records(path: str | Path) -> list[dict]:
     fmt = record_format(path)
     if not path.is_file():
         raise RecordError(f"no such record file: {str(path)!r}")
+    if fmt == "mcap":
+        from .mcap_record import read_mcap
+
+        return read_mcap(path)
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
@@ -132,9 +161,9 @@ def _read_jsonl(path: Path, text: str) -> list[dict]:
             raise RecordError(f"{path}:{lineno}: not a JSON line: {line[:60]!r}") from None
         if not isinstance(obj, dict) or not {"t_unix", "name", "topic"} <= obj.keys():
             raise RecordError(f"{path}:{lineno}: not a crawler-monitor record (needs t_unix, name, topic)")
-        row = dict(obj.get("data") or {})
-        row.update(t_unix=_number(obj["t_unix"], path, lineno), name=str(obj["name"]), topic=str(obj["topic"]))
-        out.append(row)
+        data = obj.get("data")
+        out.append(flat(_number(obj["t_unix"], path, lineno), str(obj["name"]), str(obj["topic"]),
+                        data if isinstance(data, dict) else {}))
     return out
 
 

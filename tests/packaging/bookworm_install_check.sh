@@ -20,12 +20,15 @@ if [ ! -x "$root/usr/bin/python3" ]; then
     bookworm "$root" "deb $mirror bookworm main" >/dev/null
 fi
 cp /etc/resolv.conf "$root/etc/resolv.conf"
-[ -f "${PIP_CERT:-}" ] && cp "$PIP_CERT" "$root/etc/ssl/certs/host-ca.crt"
+# a TLS-inspecting proxy's CA (this machine's bundle) must be trusted inside too
+[ -f "${PIP_CERT:-}" ] && cp "$PIP_CERT" "$root/etc/ssl/certs/host-ca.crt" || true
 rm -rf "$root/src" && mkdir -p "$root/src"
 (cd "$src" && git ls-files -z | xargs -0 cp --parents -t "$root/src")
 chroot "$root" /bin/bash -euo pipefail -c '
   export PIP_DISABLE_PIP_VERSION_CHECK=1
-  [ -f /etc/ssl/certs/host-ca.crt ] && export PIP_CERT=/etc/ssl/certs/host-ca.crt
+  if [ -f /etc/ssl/certs/host-ca.crt ]; then
+    export PIP_CERT=/etc/ssl/certs/host-ca.crt SSL_CERT_FILE=/etc/ssl/certs/host-ca.crt REQUESTS_CA_BUNDLE=/etc/ssl/certs/host-ca.crt
+  fi
   rm -rf /venv && python3 -m venv --system-site-packages /venv
   /venv/bin/pip install --quiet /src
   echo "--- installed into the venv (not from apt):"; ls /venv/lib/python3.11/site-packages | grep -iE "dist-info$" || true
