@@ -28,7 +28,7 @@ class LoopLatency:
         if not self.n:
             return 0.0
         i = int(np.searchsorted(np.cumsum(self.hist), q / 100.0 * self.n))
-        return (i + 1) * self.BIN_MS
+        return min((i + 1) * self.BIN_MS, self.max_ms)      # the bin's upper edge, never above the worst
 
     def as_dict(self) -> dict:
         return {"max": round(self.max_ms, 2), "p99": round(self.percentile(99), 2),
