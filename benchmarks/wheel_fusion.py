@@ -18,7 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from crawler.wheel import FusionParams, WheelFusion, WheelSettings, open_wheel  # noqa: E402
+from crawler.wheel import WheelFusion, WheelSettings, open_wheel  # noqa: E402
 from hw_sim.encoder import FakeInputDevice, SimEncoder, VisionModel  # noqa: E402
 from hw_sim.motion import Motion  # noqa: E402
 

@@ -14,6 +14,7 @@ import time
 import uuid
 
 from .errors import CrawlerError
+from .inspection import Inspection
 from .leds import NoLeds
 from .commands import CommandQueue, CommandRefused, number
 from .odometry import Odometer
@@ -23,8 +24,24 @@ _log = logging.getLogger(__name__)
 FPS_WINDOW = 60          # frames the status's fps is averaged over
 
 
+INSPECTION_COMMANDS = ("zero", "preset", "units", "direction", "mark", "observations")
+COMMANDS = ("reset", "led", *INSPECTION_COMMANDS)
+
+
 def new_run_id() -> str:
     return uuid.uuid4().hex[:12]
+
+
+def _resumed_inspection(resume: dict | None, fresh: Inspection) -> Inspection:
+    """The footage counter and observations the checkpoint kept, else a fresh start."""
+    if not resume or "inspection" not in resume:
+        return fresh
+    try:
+        return Inspection.from_dict(resume["inspection"])
+    except (ValueError, TypeError, AttributeError) as exc:
+        _log.error("the checkpoint's footage counter and observations are unreadable (%s); starting them "
+                   "afresh (the distance is kept)", exc)
+        return fresh
 
 
 class Daemon:
@@ -32,7 +49,8 @@ class Daemon:
 
     def __init__(self, source, odometer: Odometer, *, name: str, leds=None, outputs=(),
                  commands: CommandQueue | None = None, resume: dict | None = None,
-                 clock=time.monotonic, stop=lambda: False, max_frames: int | None = None):
+                 inspection: Inspection | None = None, clock=time.monotonic, stop=lambda: False,
+                 max_frames: int | None = None):
         self.source = source
         self.odometer = odometer
         self.name = name
@@ -44,6 +62,8 @@ class Daemon:
         self.max_frames = max_frames
         self.run_id = resume["run_id"] if resume else new_run_id()
         self._resume_m = resume["distance_m"] if resume else 0.0
+        self.inspection = _resumed_inspection(resume, inspection or Inspection())
+        self._last_t = 0.0
         self.stats = RunStats()
         self.started = 0.0
         self.last_error: str | None = None
@@ -57,7 +77,13 @@ class Daemon:
         return self.odometer.distance
 
     def state(self) -> dict:
-        return {"distance_m": round(self.distance_m, 6), "frames": self.stats.frames, "run_id": self.run_id}
+        return {"distance_m": round(self.distance_m, 6), "frames": self.stats.frames, "run_id": self.run_id,
+                "inspection": self.inspection.to_dict()}
+
+    def describe(self, estimate) -> dict:
+        """An estimate as the outputs publish it: with the crawler, the run and the footage counter."""
+        return dict(estimate.as_dict(), name=self.name, run_id=self.run_id,
+                    **self.inspection.fields(estimate.distance_m))
 
     def status(self) -> dict:
         win = self._frame_times
@@ -73,6 +99,8 @@ class Daemon:
             "last_error": self.last_error,
             "run_id": self.run_id,
             "loop_ms": self.stats.loop.as_dict(),
+            "observations": len(self.inspection.observations),
+            **self.inspection.fields(self.distance_m),
         }
         info = self.source.info()
         if info:
@@ -92,6 +120,7 @@ class Daemon:
             else:                              # whatever state it is in, a reset starts clean
                 self.odometer.reset(distance=0.0)
             self.run_id = new_run_id()
+            self.inspection.new_run()
             for output in self.outputs:
                 output.reset(self)
             _log.info("distance reset by operator; new run %s", self.run_id)
@@ -102,7 +131,14 @@ class Daemon:
             return {"cmd": "led", "level": level}
         if cmd == "status":
             return self.status()
-        raise CommandRefused(f"unknown command {cmd!r}; the commands are cmd/reset and cmd/led?level=0..1")
+        if cmd in INSPECTION_COMMANDS:
+            reply, observation = self.inspection.command(cmd, request, self.distance_m, self._last_t, self.run_id)
+            if observation is not None:
+                _log.info("observation %s %s at %.3f m", observation["id"], observation["code"], self.distance_m)
+                for output in self.outputs:
+                    output.note("observations", observation)
+            return reply
+        raise CommandRefused(f"unknown command {cmd!r}; the commands are {', '.join(COMMANDS)}")
 
     # -- the loop -------------------------------------------------------------------------------------
 
@@ -139,6 +175,7 @@ class Daemon:
     def _step(self, frame):
         t0 = time.perf_counter()
         est = self.odometer.update(frame.gray, frame.t_s)
+        self._last_t = frame.t_s
         self._last_est = est
         self.stats.add(est)
         self._frame_times.append(self.clock())

@@ -70,6 +70,13 @@ class ZenohLink:
         self.last_error = None
         self.last_status: dict | None = None
         self.seq = 0
+        self._session_listeners = []
+
+    def on_session(self, callback):
+        """callback(session) once a session is open (now, or after a retry): for more declarations."""
+        self._session_listeners.append(callback)
+        if self.session is not None:
+            callback(self.session)
 
     # -- life ---------------------------------------------------------------------------------------
 
@@ -94,7 +101,7 @@ class ZenohLink:
         try:
             json_enc = zenoh.Encoding.APPLICATION_JSON
             pubs = {k: session.declare_publisher(f"{self.prefix}/{k}", encoding=json_enc)
-                    for k in ("distance", "speed", "status")}
+                    for k in ("distance", "speed", "status", "observations")}
             queryables = [session.declare_queryable(f"{self.prefix}/status"),
                           session.declare_queryable(f"{self.prefix}/cmd/*")]
             decls = [session.liveliness().declare_token(f"{self.prefix}/alive"), *queryables]
@@ -115,6 +122,12 @@ class ZenohLink:
                 w.start()
         if recovered:
             _log.warning("zenoh session open after retrying")
+        for callback in self._session_listeners:
+            try:
+                callback(session)
+            except Exception as exc:
+                self.last_error = f"zenoh: {zenoh_message(exc)}"
+                _log.error("zenoh declarations failed: %s", self.last_error)
         return True
 
     def _retry_loop(self):
@@ -158,6 +171,9 @@ class ZenohLink:
         self.seq += 1
         self._put("distance", dict(est, seq=self.seq))
         self._put("speed", {"t_s": est["t_s"], "speed_m_s": est["speed_m_s"], "seq": self.seq})
+
+    def publish(self, topic: str, payload: dict):
+        self._put(topic, payload)
 
     def publish_status(self, status: dict):
         self.last_status = status
@@ -232,7 +248,7 @@ class ZenohOutput(Output):
         now = self.clock()
         if now - self._last_pub >= self.publish_every_s:
             self._last_pub = now
-            self.link.publish_estimate(dict(estimate.as_dict(), name=run.name))
+            self.link.publish_estimate(run.describe(estimate))
         if now - self._last_status >= self.status_every_s:
             self._last_status = now
             self.link.publish_status(run.status())
@@ -241,6 +257,9 @@ class ZenohOutput(Output):
         status["control"] = self.control
         if status.get("last_error") is None:
             status["last_error"] = self.link.last_error
+
+    def note(self, topic, payload):
+        self.link.publish(topic, payload)
 
     def stop(self, run):
         self.link.publish_status(run.status())

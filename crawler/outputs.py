@@ -64,7 +64,7 @@ class JsonlLog(Output):
 
     def write(self, frame, estimate, run):
         try:
-            self._f.write(json.dumps(estimate.as_dict(), allow_nan=False) + "\n")
+            self._f.write(json.dumps(run.describe(estimate), allow_nan=False) + "\n")
         except OSError as exc:
             raise OutputError(f"cannot write log {str(self.path)!r}: {exc.strerror}") from None
 
@@ -83,7 +83,7 @@ class Annotator(Output):
     `tracks` is what it draws from: the odometer's roi, camera, tracked_points and track_origins.
     """
 
-    def __init__(self, path: str | Path, tracks, fps: float = 30.0):
+    def __init__(self, path: str | Path, tracks, fps: float = 30.0, pipe_id: str = "", clock=time.time):
         import av
         from fractions import Fraction
 
@@ -98,34 +98,25 @@ class Annotator(Output):
         self._stream.width, self._stream.height = cam.width & ~1, cam.height & ~1
         self._stream.pix_fmt = "yuv420p"
         self._stream.options = {"crf": "23", "preset": "veryfast"}
-        self.tracks = tracks
+        self.tracks, self.pipe_id = tracks, pipe_id
+        self._t0_unix = None          # wall clock of sensor time 0, for the date on the overlay
+        self._clock = clock
         self._closed = False
 
     def write(self, frame, est, run):
         import av
 
-        odometer = self.tracks
+        from .overlay import draw_inspection, draw_odometry, draw_tracks
 
+        t = self.tracks
         img = cv2.cvtColor(frame.gray, cv2.COLOR_GRAY2BGR)
-        x, y, w, h = odometer.roi
-        colour = (0, 200, 0) if est.tracking else (0, 0, 255)
-        cv2.rectangle(img, (x, y), (x + w - 1, y + h - 1), colour, 2)
-        origin, cur = odometer.track_origins, odometer.tracked_points
-        if len(cur) and len(origin) == len(cur):
-            lines = np.stack([origin, cur], axis=1).round().astype(np.int32)
-            cv2.polylines(img, list(lines), False, (0, 200, 255), 1, cv2.LINE_AA)
-        for p in cur.round().astype(int):
-            cv2.circle(img, (int(p[0]), int(p[1])), 3, (0, 255, 255), -1)
-        cv2.circle(img, (int(odometer.camera.cx), int(odometer.camera.cy)), 4, (255, 128, 0), -1)
-        cv2.line(img, (0, int(odometer.camera.cy)), (img.shape[1] - 1, int(odometer.camera.cy)), (255, 128, 0), 1)
-        speed = "--" if est.speed_m_s is None else f"{est.speed_m_s:+.3f} m/s"
-        lines = [f"distance {est.distance_m:+.4f} m", f"speed {speed}",
-                 f"t {est.t_s:.3f} s  frame {est.frame}",
-                 f"tracks {est.inliers}/{est.tracks}  q {est.quality:.2f}" + ("" if est.tracking else "  LOST")]
-        for i, text in enumerate(lines):
-            org = (10, 30 + 28 * i)
-            cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.8, (0, 0, 0), 4, cv2.LINE_AA)
-            cv2.putText(img, text, org, cv2.FONT_HERSHEY_SIMPLEX, 0.8, (255, 255, 255), 2, cv2.LINE_AA)
+        draw_tracks(img, t.roi, t.camera, t.tracked_points, t.track_origins, est.tracking)
+        if self._t0_unix is None:
+            self._t0_unix = self._clock() - est.t_s
+        when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(self._t0_unix + est.t_s))
+        d = run.describe(est)
+        draw_odometry(img, est)
+        draw_inspection(img, d["footage"], d["direction"], self.pipe_id, when)
         img = img[: self._stream.height, : self._stream.width]
         vf = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="bgr24")
         try:

@@ -49,6 +49,7 @@ class Run(Protocol):
     def distance_m(self) -> float: ...
     def status(self) -> dict: ...
     def state(self) -> dict: ...         # what a checkpoint keeps
+    def describe(self, estimate) -> dict: ...   # an estimate with the run's fields, as published
 
 
 class Output:
@@ -73,6 +74,9 @@ class Output:
 
     def reset(self, run: Run) -> None:
         """The operator reset the distance: a new run."""
+
+    def note(self, topic: str, payload: dict) -> None:
+        """Something happened worth publishing on its own topic (an observation, a slip event)."""
 
     def report(self, status: dict) -> None:
         """Add this output's fields (its errors, its truth) to a status being built."""

@@ -27,6 +27,7 @@ import struct
 import time
 
 from .errors import BadConfig, CrawlerError
+from .ports import Output
 
 TYPE_NAME = "nav_msgs::msg::dds_::Odometry_"
 # rosidl's RIHS01 hash of nav_msgs/msg/Odometry; the same in Jazzy, Kilted and Rolling. Humble's
@@ -191,11 +192,6 @@ class Ros2Odometry:
                  distro: str = "jazzy", depth: int = 10):
         import zenoh
 
-        if not (isinstance(domain_id, int) and 0 <= domain_id <= 232):
-            raise BadConfig(f"[ros2] domain_id = {domain_id!r}: a ROS domain id is 0..232")
-        if distro not in TYPE_HASHES:
-            raise BadConfig(f"[ros2] distro = {distro!r}: one of {', '.join(TYPE_HASHES)} (kilted and rolling "
-                            "are as jazzy)")
         self.namespace = "/" + ros_name(name)
         self.topic = fully_qualified(topic or "odom", self.namespace)
         self.frame_id, self.child_frame_id = f"{ros_name(name)}/pipe", f"{ros_name(name)}/base_link"
@@ -233,3 +229,35 @@ class Ros2Odometry:
             except Exception:               # already gone with the session
                 pass
         self._decls = []
+
+
+class Ros2Output(Output):
+    """The daemon's ROS 2 topic: an Odometry per published estimate, on the link's own session (made
+    when the session opens, so a network that comes late still gets the topic)."""
+
+    def __init__(self, link, name: str, domain_id: int = 0, topic: str | None = None, distro: str = "jazzy",
+                 publish_hz: float = 30.0, clock=time.monotonic):
+        self.args = (name, domain_id, topic or None, distro)
+        self.every_s, self.clock = 1.0 / publish_hz, clock
+        self.node: Ros2Odometry | None = None
+        self._last = -float("inf")
+        self._epoch_ns = None             # wall clock of sensor time 0: ROS tools want epoch stamps
+        link.on_session(self._open)
+
+    def _open(self, session):
+        self.node = Ros2Odometry(session, *self.args)
+
+    def write(self, frame, estimate, run):
+        now = self.clock()
+        if self._epoch_ns is None:
+            self._epoch_ns = time.time_ns() - int(estimate.t_s * 1e9)
+        if self.node is None or now - self._last < self.every_s:
+            return
+        self._last = now
+        sigma = getattr(estimate, "sigma_m", None)
+        self.node.publish(self._epoch_ns + int(estimate.t_s * 1e9), estimate.distance_m, estimate.speed_m_s,
+                          sigma, None)
+
+    def close(self):
+        if self.node is not None:
+            self.node.close()

@@ -22,6 +22,7 @@ from .checkpoint import Checkpoint, CheckpointOutput
 from .daemon import Daemon
 from .errors import CameraUnavailable
 from .errors import BadConfig
+from .inspection import Inspection
 from .leds import AutoBrightness, BrightnessLoop, Leds, NoLeds, pwm_exposure_us
 from .commands import CommandQueue
 from .link import ZenohLink, ZenohOutput
@@ -119,8 +120,10 @@ class Service:
         self.leds = stack.enter_context(self._leds())
         self.store = None if self.mode is Mode.REPLAY else Checkpoint(s.state.directory)
         outputs = [stack.enter_context(out) for out in self._outputs()]
+        fresh = Inspection(unit=s.inspection.unit, direction=s.inspection.direction)
         self.daemon = Daemon(self.source, self.odometer, name=s.name, leds=self.leds, outputs=outputs,
                              commands=self.commands, resume=self.store.load() if self.store else None,
+                             inspection=fresh,
                              clock=self.hw.clock, stop=self.stop, max_frames=self.options.max_frames)
 
     def _open_source(self):
@@ -174,7 +177,7 @@ class Service:
             outs.append(JsonlLog(o.log))
         if o.annotate:
             fps = o.fps or (30.0 if self.mode is Mode.REPLAY else s.camera.fps)
-            outs.append(Annotator(o.annotate, self.odometer, fps=fps))
+            outs.append(Annotator(o.annotate, self.odometer, fps=fps, pipe_id=s.inspection.pipe_id))
         outs.append(Progress())
         if isinstance(self.source, SimSource):
             outs.append(self.source.truth)
@@ -189,6 +192,12 @@ class Service:
             link = ZenohLink(s.name, conf, self.commands)
             outs.append(ZenohOutput(link, s.zenoh.publish_hz, s.zenoh.status_hz, clock=self.hw.clock,
                                     control=access))
+            if s.ros2.enabled:
+                from .ros2 import Ros2Output
+
+                r = s.ros2
+                outs.append(Ros2Output(link, s.name, r.domain_id, r.topic, r.distro, s.zenoh.publish_hz,
+                                       clock=self.hw.clock))
         return outs
 
     # -- running ----------------------------------------------------------------------------------------

@@ -207,8 +207,40 @@ class StateSettings:
         _check_fields(self, "state")
 
 
+@dataclass(frozen=True)
+class InspectionSettings:
+    """What the inspection overlay and report say of the pipe, and the footage counter's start."""
+
+    pipe_id: str = _f("")                       # e.g. "MH12-MH13", burned into the annotated video
+    unit: str = _f("m", one_of("m", "ft"))      # of a new run; the operator can change it (cmd/units)
+    direction: str = _f("downstream", one_of("downstream", "upstream"))
+
+    def __post_init__(self):
+        _check_fields(self, "inspection")
+        if len(self.pipe_id) > 40 or any(ord(ch) < 32 for ch in self.pipe_id):
+            raise BadConfig(f"[inspection] pipe_id = {self.pipe_id!r} must be at most 40 characters of text")
+
+
+@dataclass(frozen=True)
+class Ros2Settings:
+    """Publish nav_msgs/msg/Odometry the way rmw_zenoh does, for ROS 2 machines on the network."""
+
+    enabled: bool = _f(False)
+    domain_id: int = _f(0, between(0, 232))     # ROS_DOMAIN_ID
+    topic: str = _f("")                         # default /<name>/odom
+    distro: str = _f("jazzy", one_of("jazzy", "humble"))
+
+    def __post_init__(self):
+        _check_fields(self, "ros2")
+        if self.topic:
+            from .ros2 import fully_qualified
+
+            fully_qualified(self.topic, "/crawler")        # ROS 2's own name rules, in one place
+
+
 SECTIONS = {"camera": CameraSettings, "mount": MountSettings, "odometry": OdometrySettings,
-            "leds": LedSettings, "zenoh": ZenohSettings, "state": StateSettings}
+            "leds": LedSettings, "zenoh": ZenohSettings, "state": StateSettings,
+            "inspection": InspectionSettings, "ros2": Ros2Settings}
 
 
 @dataclass(frozen=True)
@@ -222,6 +254,8 @@ class Settings:
     leds: LedSettings = field(default_factory=LedSettings)
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
     state: StateSettings = field(default_factory=StateSettings)
+    inspection: InspectionSettings = field(default_factory=InspectionSettings)
+    ros2: Ros2Settings = field(default_factory=Ros2Settings)
 
     def __post_init__(self):
         _check_field(self, "", "name", self.name, "str")

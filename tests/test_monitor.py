@@ -556,8 +556,6 @@ def test_the_whole_loop_with_crawlerd_sim(tmp_path, capsys):
     assert rc == 0 and "1 crawler(s) crawler1" in out, err
 
 
-@pytest.mark.xfail(strict=True, reason="crawlerd answers on crawler/<name>/status and cmd/<verb> once the "
-                                       "daemon side of issue 15 lands: then remove this mark")
 def test_commands_reach_crawlerd_sim(tmp_path, capsys):
     port = free_port()
     net = ["--no-multicast", "--connect", f"tcp/127.0.0.1:{port}"]

@@ -21,7 +21,7 @@ from crawler.monitor import main
 from crawler.monitor.cli import build_parser
 from crawler.monitor.net import open_session
 from crawler.monitor.plot import plot_figure, series_from_records
-from crawler.monitor.record import COLUMNS, RecordError, open_record, read_records
+from crawler.monitor.record import RecordError, open_record, read_records
 from crawler.monitor.report import observation_rows, video_time
 from crawler.monitor.schemas import BY_TOPIC
 from crawler.monitor.watch import Watch

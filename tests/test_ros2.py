@@ -135,10 +135,14 @@ def test_a_ros2_subscriber_on_loopback_sees_the_topic_the_tokens_and_the_message
 def test_bad_ros2_settings_are_named(zenoh_pair):
     session = zenoh.open(make_zenoh_config("peer", listen=zenoh_pair["listen"], multicast=False))
     try:
-        with pytest.raises(BadConfig, match=r"domain_id = 300: a ROS domain id is 0..232"):
-            Ros2Odometry(session, "c1", domain_id=300)
-        with pytest.raises(BadConfig, match="distro = 'iron'"):
-            Ros2Odometry(session, "c1", distro="iron")
+        from crawler import settings
+
+        with pytest.raises(BadConfig, match=r"\[ros2\] domain_id = 300 must be between 0 and 232"):
+            settings.load(None, ["ros2.domain_id=300"])
+        with pytest.raises(BadConfig, match=r"\[ros2\] distro = 'iron' must be one of jazzy, humble"):
+            settings.load(None, ["ros2.distro='iron'"])
+        with pytest.raises(BadConfig, match="topic = 'odom/'"):
+            settings.load(None, ["ros2.topic='odom/'"])
         with pytest.raises(BadConfig, match="topic = 'odom/'"):
             Ros2Odometry(session, "c1", topic="odom/")
         humble = Ros2Odometry(session, "pipe-cam", distro="humble", topic="/inspection/odom")

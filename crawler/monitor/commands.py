@@ -7,18 +7,12 @@ the laptop; the daemon checks again.
 from __future__ import annotations
 
 import json
-import math
-import re
 import sys
 
 from .net import DaemonError, NoAnswer, command, command_key, open_session, status
 
-M_PER_FT = 0.3048
-UNITS = ("m", "ft")
-DIRECTIONS = ("downstream", "upstream")
-KINDS = ("point", "start", "finish")
-CODE_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+-]{0,15}$")
-NOTE_MAX = 200
+from ..inspection import (DIRECTIONS, KINDS, M_PER_FT, UNITS, clock_arg, code_arg,  # noqa: F401
+                          distance_arg, note_arg)
 
 
 def level_arg(text) -> float:
@@ -29,39 +23,6 @@ def level_arg(text) -> float:
     if not 0.0 <= level <= 1.0:
         raise ValueError(f"{level:g} is outside 0..1")
     return level
-
-
-def distance_arg(text) -> float:
-    try:
-        x = float(text)
-    except (TypeError, ValueError):
-        raise ValueError(f"{text!r} is not a distance (a number like 12.40)") from None
-    if not math.isfinite(x) or abs(x) > 100_000:
-        raise ValueError(f"{text!r} is not a plausible distance (|d| <= 100000)")
-    return x
-
-
-def code_arg(text: str) -> str:
-    if not CODE_RE.match(text or ""):
-        raise ValueError(f"observation code {text!r}: 1 to 16 letters, digits, _ . + -, starting with a "
-                         "letter or digit (e.g. FL, BAB, TFA)")
-    return text
-
-
-def clock_arg(text) -> int:
-    try:
-        clock = int(str(text).lstrip("@"))
-    except ValueError:
-        raise ValueError(f"clock {text!r} is not a whole hour 1..12") from None
-    if not 1 <= clock <= 12:
-        raise ValueError(f"clock {clock} is outside 1..12 (12 is the crown, 6 the invert)")
-    return clock
-
-
-def note_arg(text: str) -> str:
-    if len(text) > NOTE_MAX or any(ord(ch) < 32 for ch in text):
-        raise ValueError(f"note {text[:40]!r}...: at most {NOTE_MAX} characters, no control characters")
-    return text
 
 
 def mark_args(code: str, clock=None, kind: str = "point", note: str = "") -> dict:

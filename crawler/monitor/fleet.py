@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 SILENT_AFTER_S = 2.0
 TOPICS = ("distance", "speed", "status", "observations")
-FEET_PER_M = 1 / 0.3048
+from ..inspection import footage_text  # noqa: F401  (the view and the report use it from here)
 
 
 @dataclass(frozen=True)
@@ -211,15 +211,6 @@ class FleetState:
         elif c.silent and not reason:
             events.append(Event(c.name, "back", "talking again"))
         c.silent = reason
-
-
-def footage_text(footage_m: float | None, unit: str | None) -> str:
-    """The footage as an inspection overlay shows it: metres or feet to a tenth."""
-    if footage_m is None:
-        return "-"
-    if unit == "ft":
-        return f"{footage_m * FEET_PER_M:.1f} ft"
-    return f"{footage_m:.1f} m"
 
 
 def observation_text(o: dict) -> str:
