@@ -207,6 +207,12 @@ def _range(c: SimConfig, name: str, lo: float, hi: float, lo_open: bool = False)
 
 
 def _validate(c: SimConfig) -> None:
+    for group in (_validate_camera, _validate_mount, _validate_surface, _validate_motion,
+                  _validate_disturbances, _validate_run, _validate_view):
+        group(c)
+
+
+def _validate_camera(c: SimConfig) -> None:
     _range(c, "width", 2, 8192)
     _range(c, "height", 2, 8192)
     _range(c, "vfov_deg", 1.0, 150.0)
@@ -222,6 +228,9 @@ def _validate(c: SimConfig) -> None:
     if not (W % 2 == 0 and Hh % 2 == 0 and 16 <= W <= 4096 and 16 <= Hh <= 4096):
         raise ConfigError(name, getattr(c, name),
                           f"gives a {W}x{Hh} output frame; H.264 yuv420p needs even sizes in 16..4096")
+
+
+def _validate_mount(c: SimConfig) -> None:
     _range(c, "pipe_diameter_m", 0.02, 10.0)
     _range(c, "car_width_m", 0.0, 10.0, lo_open=True)
     _check(c, "car_width_m", c.car_width_m < c.pipe_diameter_m,
@@ -233,12 +242,18 @@ def _validate(c: SimConfig) -> None:
         _check(c, "offset_m", 0 < c.H_m < c.pipe_diameter_m,
                f"puts the camera outside the pipe (H = {c.H_m:.4f} m, diameter {c.pipe_diameter_m} m)")
     _range(c, "tilt_deg", -MAX_TILT_DEG, MAX_TILT_DEG)
+
+
+def _validate_surface(c: SimConfig) -> None:
     _range(c, "mm_per_texel", 0.02, 5.0)
     _range(c, "brightness", 0.0, 255.0)
     _range(c, "contrast", 0.0, 4.0)
     for a, b in c.featureless:
         _check(c, "featureless", a < b, f"has an interval ({a}, {b}) whose start is not before its end")
     _range(c, "featureless_contrast", 0.0, 1.0)
+
+
+def _validate_motion(c: SimConfig) -> None:
     _check(c, "profile", c.profile in PROFILES, f"is not one of {', '.join(PROFILES)}")
     _range(c, "speed_m_s", 0.0, MAX_SPEED_M_S)
     _range(c, "duration_s", 0.0, 24 * 3600.0, lo_open=True)
@@ -248,6 +263,9 @@ def _validate(c: SimConfig) -> None:
     _check(c, "stopgo_dwell_s", c.stopgo_dwell_s < c.stopgo_period_s,
            f"must be shorter than stopgo_period_s={c.stopgo_period_s!r}")
     _range(c, "start_m", -1e5, 1e5)
+
+
+def _validate_disturbances(c: SimConfig) -> None:
     _range(c, "bounce_mm", 0.0, 500.0 * c.H_m)    # at most half of H
     _range(c, "pitch_jitter_deg", 0.0, 10.0)
     _range(c, "roll_deg", 0.0, 90.0)
@@ -261,9 +279,16 @@ def _validate(c: SimConfig) -> None:
     _range(c, "readout_ms", 0.0, frame_ms)
     _range(c, "flicker_amp", 0.0, 0.9)
     _range(c, "drop_prob", 0.0, 0.9)
+
+
+def _validate_run(c: SimConfig) -> None:
     _range(c, "seed", 0, 2**32 - 1)
     _range(c, "crf", 0, 51)
     _check(c, "preset", c.preset in PRESETS, f"is not an x264 preset ({', '.join(PRESETS)})")
+
+
+def _validate_view(c: SimConfig) -> None:
+    """The steepest ray must still meet the wall at a usable angle (after each field's own range)."""
     view = abs(c.tilt_deg) + c.vfov_deg / 2 + c.pitch_jitter_deg
     _check(c, "tilt_deg", view < MAX_VIEW_DEG,
            f"with vfov_deg={c.vfov_deg:g} puts the frame edge {view:.1f} deg from vertical; "
