@@ -178,13 +178,9 @@ class Simulator:
             blur = 0.0
         off_c = -self.radius_m * pose["roll"] / tex.m_per_texel_circ - 0.5
         out = None
-        for lv, (Rk, Ck, cmin, cmax) in zip(self._levels, maps):
+        for lv, maps, (r0, r1, c0, c1), orow in self._bands(view, maps, off_r, off_c):
+            Rk, Ck = maps[0], maps[1]
             s = 0.5 ** lv.k
-            orow = off_r[lv.a:lv.b] if np.ndim(off_r) else off_r
-            rlo = float(np.min(view.rmin[lv.a:lv.b] + orow)) * s
-            rhi = float(np.max(view.rmax[lv.a:lv.b] + orow)) * s
-            r0, r1 = math.floor(rlo) - 1, math.floor(rhi) + 3
-            c0, c1 = math.floor((cmin + off_c) * s) - 1, math.floor((cmax + off_c) * s) + 3
             region = self._blurred_region(lv.k, r0, r1, c0, c1, blur * s)
             if np.ndim(orow):
                 mapy = Rk + (np.asarray(orow) * s - r0).astype(np.float32)[:, None]
@@ -201,6 +197,29 @@ class Simulator:
         if view.gain is not None:
             out *= view.gain
         return out
+
+    def _bands(self, view: _View, maps, off_r, off_c):
+        """Per pyramid level: its maps, the texture region [r0, r1) x [c0, c1) its rows need at
+        these offsets, and its rows' axial offsets."""
+        for lv, m in zip(self._levels, maps):
+            s = 0.5 ** lv.k
+            orow = off_r[lv.a:lv.b] if np.ndim(off_r) else off_r
+            rlo = float(np.min(view.rmin[lv.a:lv.b] + orow)) * s
+            rhi = float(np.max(view.rmax[lv.a:lv.b] + orow)) * s
+            cmin, cmax = m[2], m[3]
+            yield lv, m, (math.floor(rlo) - 1, math.floor(rhi) + 3,
+                          math.floor((cmin + off_c) * s) - 1, math.floor((cmax + off_c) * s) + 3), orow
+
+    def prefetch(self, t_s: float, budget: int = 1 << 30) -> bool:
+        """Generate the texture tiles a frame at t_s will need (the undisturbed view), at most
+        `budget` new ones, so that rendering it later finds them cached. True: all are cached."""
+        tex = self.texture
+        off_r = (self.cfg.start_m + self.motion.distance(t_s)) / tex.m_per_texel - 0.5
+        for lv, _, (r0, r1, c0, c1), _ in self._bands(self._view0, self._level_maps, off_r, -0.5):
+            budget -= tex.ensure(lv.k, r0, r1, c0, c1, budget)
+            if budget <= 0:
+                return False
+        return True
 
     def _blurred_region(self, k: int, r0: int, r1: int, c0: int, c1: int, length: float) -> np.ndarray:
         """Texture level k over [r0, r1) x [c0, c1), box-filtered along rows over `length` texels."""

@@ -15,6 +15,7 @@ on the wall so that oblique views do not alias.
 """
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
 
 import cv2
@@ -106,6 +107,8 @@ class WallTexture:
         self.cache_tiles = cache_tiles
         self._cache: OrderedDict[tuple[int, int], list[np.ndarray]] = OrderedDict()
         self.tiles_generated = 0
+        self._lock = threading.Lock()     # the fake's camera thread and its consumer share tiles
+        self._pending: dict[tuple[int, int], threading.Event] = {}
 
     # --- the texture function -------------------------------------------------------------------
     def _contrast_rows(self, rows: np.ndarray) -> np.ndarray:
@@ -171,12 +174,37 @@ class WallTexture:
         return min(TILE, self.n_cols - tx * TILE)
 
     def tile(self, tx: int, ty: int) -> list[np.ndarray]:
-        """Pyramid [level0 (TILE x w), level1, ...] of tile column tx (0..n_tile_cols-1), row ty."""
+        """Pyramid [level0 (TILE x w), level1, ...] of tile column tx (0..n_tile_cols-1), row ty.
+
+        Thread-safe: a tile is generated outside the lock (tens of ms), once; a second thread that
+        needs the same tile meanwhile waits for it, others go on with cached ones."""
         key = (tx, ty)
-        lv = self._cache.get(key)
-        if lv is not None:
-            self._cache.move_to_end(key)
+        with self._lock:
+            lv = self._cache.get(key)
+            if lv is not None:
+                self._cache.move_to_end(key)
+                return lv
+            pending = self._pending.get(key)
+            mine = pending is None
+            if mine:
+                pending = self._pending[key] = threading.Event()
+        if not mine:
+            pending.wait()
+            return self.tile(tx, ty)
+        try:
+            lv = self._make_tile(tx, ty)
+            with self._lock:
+                self._cache[key] = lv
+                self.tiles_generated += 1
+                while len(self._cache) > self.cache_tiles:
+                    self._cache.popitem(last=False)
             return lv
+        finally:
+            with self._lock:
+                del self._pending[key]
+            pending.set()
+
+    def _make_tile(self, tx: int, ty: int) -> list[np.ndarray]:
         w = self.tile_width(tx)
         rows = np.arange(ty * TILE - MARGIN, (ty + 1) * TILE + MARGIN)
         cols = np.arange(tx * TILE - MARGIN, tx * TILE + w + MARGIN)
@@ -186,10 +214,6 @@ class WallTexture:
             p = cv2.pyrDown(p)
             m = MARGIN >> k
             lv.append(np.ascontiguousarray(p[m:-m, m:-m]))
-        self._cache[key] = lv
-        self.tiles_generated += 1
-        while len(self._cache) > self.cache_tiles:
-            self._cache.popitem(last=False)
         return lv
 
     def region(self, level: int, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
@@ -213,3 +237,24 @@ class WallTexture:
                 c += ncols
             r += nr
         return out
+
+    def ensure(self, level: int, r0: int, r1: int, c0: int, c1: int, budget: int = 1 << 30) -> int:
+        """Generate (and cache) the tiles region(level, r0, r1, c0, c1) would read, at most
+        `budget` new ones; returns how many it made."""
+        T, nc = TILE >> level, self.n_cols >> level
+        cols, c = set(), c0
+        while c < c1 and len(cols) * T < nc + T:
+            tx, ci = divmod(c % nc, T)
+            cols.add(tx)
+            c += (self.tile_width(tx) >> level) - ci
+        made = 0
+        for ty in range(r0 // T, (r1 - 1) // T + 1):
+            for tx in sorted(cols):
+                if made >= budget:
+                    return made
+                with self._lock:
+                    cached = (tx, ty) in self._cache
+                if not cached:
+                    self.tile(tx, ty)
+                    made += 1
+        return made

@@ -4,7 +4,7 @@ from __future__ import annotations
 import contextlib
 import math
 import threading
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -12,18 +12,13 @@ from ..render import Simulator
 from .configs import (AF_CONTROLS, CONTROLS, NR_FAST, NR_HIGH_QUALITY, NR_MINIMAL, check_config, fill_stride,
                       mode_score, stream_config)
 from .crop import default_isp_crop, isp_crop, native_crop
+from .pump import AHEAD_S, PREFETCH_S, FrameJob, RenderAhead, RenderNow
 from .request import CompletedRequest
 from .sensors import EXPOSURE_MIN_LINES, FRAME_LINES_MAX, ISP_MIN_CROP, REF_EXPOSURE, SensorFormat, Transform
+from .timeline import FrameQueue, FrameSettings, Timeline
 from .world import SimWorld
-@dataclass(frozen=True)
-class _Settings:
-    """What one frame is made with."""
-    crop: tuple[int, int, int, int]     # the effective ScalerCrop, native pixels
-    exposure_us: int
-    gain: float
-    period_ns: int
 
-
+PREFETCH_STEP_S = 0.05     # world time between two tile prefetches of the camera thread
 class FakePicamera2:
     """picamera2.Picamera2 on a SimWorld; make_picamera2(world) gives a class bound to one."""
 
@@ -46,6 +41,7 @@ class FakePicamera2:
         self.sensor_format = s.formats[0]
         self.camera_config, self.sensor_modes_, self.stop_count, self.configure_count = {}, [], 0, 0
         self._mode, self._ctl, self._sims, self._lock = None, {}, {}, threading.RLock()
+        self._sims_lock, self._renderer = threading.Lock(), RenderNow(self._simulator)
         self._props = {"Model": s.model, "Location": 2, "Rotation": s.rotation, "PixelArraySize": s.pixel_array,
                        "PixelArrayActiveAreas": [s.active], "ScalerCropMaximum": (0, 0, 0, 0),
                        "UnitCellSize": (s.unit_cell_nm, s.unit_cell_nm), "ColorFilterArrangement": s.cfa}
@@ -181,13 +177,13 @@ class FakePicamera2:
         with self._lock:
             self._ctl |= self._checked(controls)
             if self.started:
-                k = self._k_at(self.world.clock()) + 1
-                segs = [s for s in self._segs if s[0] < k] + [(k, self._ts(k), self._resolve(self._ctl))]
-                while len(segs) > 1 and segs[1][0] <= self._last_k + 1 and not self._orphans:
-                    segs.pop(0)             # no frame of the first segment can be returned any more
-                self._segs = segs
+                q, now = self._frames, self.world.clock()
+                q.advance(now)
+                k = q.timeline.k_at(now) + 1
+                q.timeline.change(k, self._resolve(self._ctl), q.keep_from())
+                self._renderer.retarget(k)
 
-    def _resolve(self, ctl: dict) -> _Settings:
+    def _resolve(self, ctl: dict) -> FrameSettings:
         """Controls -> what sensor and ISP do: the frame duration clamped and in whole lines, the
         exposure and gain (auto: exposure x gain = REF_EXPOSURE), the effective ScalerCrop."""
         m, ln = self._mode, self._mode.line_us
@@ -200,7 +196,7 @@ class FakePicamera2:
         e = int(min(max(e, EXPOSURE_MIN_LINES * ln), (lines - 4) * ln))
         g = min(max(g or REF_EXPOSURE / e, 1.0), self.camera.max_gain)
         isp = isp_crop(ctl["ScalerCrop"], m) if "ScalerCrop" in ctl else self._default_isp
-        return _Settings(native_crop(isp, m), e, round(g, 6), int(round(lines * ln * 1000)))
+        return FrameSettings(native_crop(isp, m), e, round(g, 6), int(round(lines * ln * 1000)))
 
     # --- running ----------------------------------------------------------------------------------
     def start(self, config=None, show_preview=False) -> None:
@@ -212,18 +208,25 @@ class FakePicamera2:
             if self.started:
                 return
             st, w = self._resolve(self._ctl), self.world
+            sim, t = self._simulator(st), 0.0 if w._auto_start else w.t_s(w.clock())
+            sim.render(t)                   # the tiles of the first PREFETCH_S, before the clock runs
+            for i in range(int(PREFETCH_S / PREFETCH_STEP_S) + 1):
+                sim.prefetch(t + i * PREFETCH_STEP_S)
             if w._auto_start:
                 w.start_ns, w._auto_start = w.clock(), False
-            with w.standstill():                # the first view's tiles, before the first frame
-                self._simulator(st).render(w.t_s(w.clock()))
-            self._segs, self._last_k, self._held, self._orphans = [(0, w.clock(), st)], -1, 0, []
-            self._lat = int(self._mode.size[1] * self._mode.line_us * 1000)   # frame start -> buffer done
-            self.started = True
+            latency = int(self._mode.size[1] * self._mode.line_us * 1000)   # frame start -> buffer done
+            self._frames = FrameQueue(Timeline(w.clock(), st), latency, self.camera_config["buffer_count"],
+                                      self._queue, lambda ks, ts: w.lost(ks, ts, latency), w.counts)
+            self._renderer = (RenderAhead(self._simulator, self._next_render, w.counts, self._prefetch) if w.render_ahead
+                              else RenderNow(self._simulator))
+            self._prefetched_t, self.started = -math.inf, True
 
     def stop(self) -> None:
         if self.started:
-            self.started = False
-            self.stop_count += 1
+            with self._lock:
+                self.started = False
+                self.stop_count += 1
+            self._renderer.stop()
 
     def close(self) -> None:
         if self.is_open:
@@ -233,74 +236,75 @@ class FakePicamera2:
 
     def cancel_all_and_flush(self) -> None:
         """Forget timed-out captures (picamera2 leaves them queued: each would take a frame)."""
-        self._orphans = []
+        with self._lock:
+            if self.started:
+                self._frames.orphans = 0
 
-    def _seg(self, k):
-        return next((s for s in reversed(self._segs) if s[0] <= k), self._segs[0])
-
-    def _ts(self, k) -> int:
-        k0, ts0, st = self._seg(k)
-        return ts0 + (k - k0) * st.period_ns
-
-    def _k_at(self, t_ns) -> int:
-        """The newest frame whose SensorTimestamp is <= t_ns."""
-        for k0, ts0, st in reversed(self._segs):
-            if t_ns >= ts0:
-                return k0 + int((t_ns - ts0) // st.period_ns)
-        return self._segs[0][0] - 1
-
-    def _scan(self, lo, hi, down, flush):
-        """The first usable frame in [lo, hi], searching down or up: not lost in a stall, not
-        dropped (SimConfig.drop_prob), and exposed after `flush`."""
-        k, w = (hi if down else lo), self.world
-        while lo <= k <= hi:
-            ts = self._ts(k)
-            gap = w._lost(ts + self._lat)
-            if gap:
-                if not down and gap[1] == math.inf:
-                    return None             # still stalled: nothing later has arrived
-                k = self._k_at(gap[0] - self._lat - 1) if down else self._k_at(gap[1] - self._lat - 1) + 1
-                continue
-            p = w.sim.drop_prob
-            if not (p and np.random.default_rng([w.sim.seed, 0xD0, k]).random() < p) and (
-                    flush is None or ts - 1000 * self._seg(k)[2].exposure_us >= flush):
-                return k
-            k += -1 if down else 1
-        return None
-
-    def _pick(self, now, t_call, flush):
-        newest = self._k_at(now - self._lat)
-        while self._orphans:    # a timed-out capture takes the first frame after its timeout
-            k = self._scan(max(self._last_k + 1, self._k_at(self._orphans[0] - self._lat) + 1), newest, False, None)
-            if k is None:
-                return None
-            self._last_k, self._held = k, self._held + 1
-            self._orphans.pop(0)
-        if self._held >= self.camera_config["buffer_count"]:
-            return None         # the application holds every buffer: the camera starves
-        if self._queue:         # picamera2 keeps the latest completed request
-            return self._scan(self._last_k + 1, newest, True, flush)
-        return self._scan(max(self._last_k, self._k_at(t_call - self._lat)) + 1, newest, False, flush)
+    @property
+    def buffers_in_use(self) -> int:
+        """Buffers the application and picamera2's latest-request slot hold (<= buffer_count)."""
+        return self._frames.in_use if self.started else 0
 
     def _next_frame(self, timeout_s, flush) -> int:
+        """Block until a frame is ours: the latest completed one (queue) or the next to complete."""
         w = self.world
-        t_call = w.clock()
-        deadline = None if timeout_s is None else t_call + int(timeout_s * 1e9)
+        deadline = None if timeout_s is None else w.clock() + int(timeout_s * 1e9)
+        waiter = None
         while True:
             with self._lock:
                 now = w.clock()
-                k = self._pick(now, t_call, flush) if self.started else None
-                if k is not None:
-                    self._last_k, self._held = k, self._held + 1
-                    return k
+                if self.started:
+                    q = self._frames
+                    q.advance(now)
+                    k = waiter.frame if waiter is not None else q.take_kept(flush)
+                    if k is not None:
+                        return k
+                    waiter = waiter or q.wait(flush)
+                    due = q.completion_ns(q.next_k)
+                elif deadline is None:
+                    raise RuntimeError("the camera is not started: picamera2 would wait forever")
+                else:
+                    due = now + 10**7
                 if deadline is not None and now >= deadline:
                     if self.started:
-                        self._orphans.append(now)
+                        q.give_up(waiter)
                     raise TimeoutError(f"no frame within {timeout_s:g} s")
-                if not self.started and deadline is None:
-                    raise RuntimeError("the camera is not started: picamera2 would wait forever")
-                due = self._ts(self._k_at(now - self._lat) + 1) + self._lat if self.started else now + 10**7
             w.sleep(max(min(due, deadline or due) - now, 100_000) / 1e9)
+
+    def _job(self, k: int) -> FrameJob:
+        st, m = self._frames.timeline.settings(k), self._mode
+        row0 = (st.crop[1] - m.crop[1]) * m.size[1] / m.crop[3]       # the window's top row in the mode
+        t = self.world.t_s(self._frames.timeline.ts(k)) + (row0 * m.line_us - st.exposure_us / 2) / 1e6
+        return FrameJob(k, st, t, st.exposure_us * st.gain / REF_EXPOSURE)
+
+    def _next_render(self, after: int) -> tuple[FrameJob | None, float]:
+        """For the camera thread: the next frame after `after` that will (or just did) complete, if
+        it completes within AHEAD_S; else how long to wait."""
+        with self._lock:
+            if not self.started:
+                return None, 0.01
+            q, now = self._frames, self.world.clock()
+            k = max(after + 1, q.timeline.k_at(now - q.latency_ns), q.next_k - 1, 0)
+            for _ in range(64):             # skip frames that will never complete
+                ts = q.timeline.ts(k)
+                if not self.world.lost(np.array([k]), np.array([ts]), q.latency_ns)[0]:
+                    break
+                k += 1
+            early = (ts + q.latency_ns - now) / 1e9 - AHEAD_S
+            return (self._job(k), 0.0) if early <= 0 else (None, min(early, 0.05))
+
+    def _prefetch(self) -> None:
+        """For the camera thread when idle: the texture tiles of the view PREFETCH_S ahead."""
+        with self._lock:
+            if not self.started:
+                return
+            now, tl = self.world.clock(), self._frames.timeline
+            t = self.world.t_s(now) + PREFETCH_S
+            if t < self._prefetched_t + PREFETCH_STEP_S:
+                return
+            st = tl.settings(tl.k_at(now) + 1)
+        if self._simulator(st).prefetch(t, budget=1):    # one tile at a time: frames come first
+            self._prefetched_t = t
 
     def capture_request(self, wait=None, signal_function=None, flush=None) -> "CompletedRequest":
         """The newest completed frame not yet returned, else the next one. wait None/True: block;
@@ -310,17 +314,15 @@ class FakePicamera2:
         k = self._next_frame(None if wait in (None, True) else float(wait),
                              self.world.clock() if flush is True else flush)
         with self._lock:
-            ts, st, m = self._ts(k), self._seg(k)[2], self._mode
-            sim = self._simulator(st)
-        row0 = (st.crop[1] - m.crop[1]) * m.size[1] / m.crop[3]       # the window's top row in the mode
-        t = self.world.t_s(ts) + (row0 * m.line_us - st.exposure_us / 2) / 1e6   # ...its mid-exposure
+            job, ts = self._job(k), self._frames.timeline.ts(k)
+            self.world.counts.delivered += 1
+        st = job.settings
         md = {"SensorTimestamp": ts, "ScalerCrop": st.crop, "ExposureTime": st.exposure_us,
               "AnalogueGain": st.gain, "DigitalGain": 1.0, "FrameDuration": int(round(st.period_ns / 1000)),
               "ColourGains": (1.8, 1.6), "ColourTemperature": 4500, "Lux": 400.0, "AeLocked": True,
               "SensorBlackLevels": (4096, 4096, 4096, 4096), "FocusFoM": 1000,
               "ColourCorrectionMatrix": (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)}
-        self.world.frames_delivered += 1
-        return CompletedRequest(self, md, sim, t, st.exposure_us * st.gain / REF_EXPOSURE)
+        return CompletedRequest(self, md, job)
 
     @contextlib.contextmanager
     def captured_request(self, wait=None, flush=None):
@@ -338,27 +340,31 @@ class FakePicamera2:
         with self.captured_request(wait=wait) as r:
             return r.make_array(name)
 
-    def _simulator(self, st: _Settings) -> Simulator:
+    def _simulator(self, st: FrameSettings) -> Simulator:
         """hw_sim's camera for these settings: the active array with the lens FOV, cropped to the
         effective ScalerCrop, scaled to main, this exposure, and the window's readout time."""
         m, s = self._mode, self.camera
         key = (st.crop, self._out, st.exposure_us, st.period_ns)
-        if key not in self._sims:
-            rows = st.crop[3] * m.size[1] / m.crop[3]
-            cfg = replace(self.world.sim, width=s.active[2], height=s.active[3], hfov_deg=s.fov_deg[0],
-                          vfov_deg=s.fov_deg[1], window=st.crop, output_size=self._out,
-                          fps=1e9 / st.period_ns, exposure_ms=st.exposure_us / 1000,
-                          readout_ms=max(rows - 1, 0) * m.line_us / 1000, drop_prob=0.0)
-            if len(self._sims) >= 4:
-                self._sims.pop(next(iter(self._sims)))
-            with self.world.standstill():
+        with self._sims_lock:
+            if key not in self._sims:
+                rows = st.crop[3] * m.size[1] / m.crop[3]
+                cfg = replace(self.world.sim, width=s.active[2], height=s.active[3], hfov_deg=s.fov_deg[0],
+                              vfov_deg=s.fov_deg[1], window=st.crop, output_size=self._out,
+                              fps=1e9 / st.period_ns, exposure_ms=st.exposure_us / 1000,
+                              readout_ms=max(rows - 1, 0) * m.line_us / 1000, drop_prob=0.0)
+                if len(self._sims) >= 4:
+                    self._sims.pop(next(iter(self._sims)))
                 self._sims[key] = self.world.simulator(cfg)
-        return self._sims[key]
+            return self._sims[key]
+
+    def _pixels(self, job: FrameJob) -> np.ndarray:
+        return self._renderer.pixels(job)
 
     def _released(self, request: "CompletedRequest") -> None:
         with self._lock:
-            if request.stop_count == self.stop_count:
-                self._held -= 1
+            if request.stop_count == self.stop_count and self.started:
+                self._frames.advance(self.world.clock())
+                self._frames.release()
 
 
 def make_picamera2(world: SimWorld) -> type:

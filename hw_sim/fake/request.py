@@ -6,21 +6,22 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from ..render import Simulator
 from .configs import RGB_BYTES, YUV_FORMATS
+from .pump import FrameJob
 
 if TYPE_CHECKING:
     from .camera import FakePicamera2
 
+
 class CompletedRequest:
     """A captured frame holding one camera buffer until release() (picamera2/request.py). Its
-    pixels are rendered by the first make_array, so frames nobody looks at cost nothing."""
+    pixels come with the first make_array: ready from the camera thread, or rendered then."""
 
-    def __init__(self, picam2: FakePicamera2, metadata: dict, sim: Simulator, t_s: float, brightness: float):
+    def __init__(self, picam2: FakePicamera2, metadata: dict, job: FrameJob):
         self.picam2, self.request, self.ref_count = picam2, object(), 1
         self.stop_count, self.configure_count = picam2.stop_count, picam2.configure_count
         self.config = picam2.camera_config.copy()
-        self._md, self._sim, self._t, self._b, self._grey = metadata, sim, t_s, brightness, None
+        self._md, self._job, self._grey = metadata, job, None
         self._mapped: dict[str, np.ndarray] = {}
 
     def acquire(self) -> None:
@@ -44,11 +45,7 @@ class CompletedRequest:
 
     def _image(self) -> np.ndarray:
         if self._grey is None:
-            with self.picam2.world.standstill():
-                img = self._sim.render(self._t)
-            if abs(self._b - 1.0) > 1e-6:       # exposure x gain off the reference: brighter/darker
-                img = np.clip(img * np.float32(self._b) + np.float32(0.5), 0, 255).astype(np.uint8)
-            self._grey = img
+            self._grey = self.picam2._pixels(self._job)
         return self._grey
 
     def make_array(self, name: str) -> np.ndarray:

@@ -1,15 +1,18 @@
 """The pipe run the fake cameras film: a SimConfig, a clock and the ground truth."""
 from __future__ import annotations
 
-import contextlib
 import math
 import time
 from dataclasses import replace
 
+import numpy as np
+
 from ..config import SimConfig
 from ..motion import Motion
 from ..render import Simulator
+from ..texture import hash_uniform
 from .sensors import SENSORS
+from .timeline import FrameCounts
 
 
 class ManualClock:
@@ -35,7 +38,7 @@ class SimWorld:
     """
 
     def __init__(self, sensor="imx219", sim: SimConfig | None = None, *, clock=time.monotonic_ns,
-                 sleep=time.sleep, start_ns: int | None = None, free_render: bool = True, **fields):
+                 sleep=time.sleep, start_ns: int | None = None, render_ahead: bool | None = None, **fields):
         self.sensor = SENSORS[sensor] if isinstance(sensor, str) else sensor
         self.sim = replace(sim or SimConfig(duration_s=24 * 3600.0), **fields)
         (aw, ah), (hf, vf) = self.sensor.active[2:], self.sensor.fov_deg
@@ -44,31 +47,21 @@ class SimWorld:
         s = self.sim
         self.motion = Motion(s.profile, s.speed_m_s, s.duration_s, s.accel_m_s2, s.stopgo_period_s,
                              s.stopgo_dwell_s)
-        self._clock, self.sleep, self.free_render, self._paused_ns, self._depth = clock, sleep, free_render, 0, 0
+        self.clock, self.sleep = clock, sleep
+        # a camera thread renders ahead on the wall clock; an injected clock renders on demand
+        self.render_ahead = clock is time.monotonic_ns if render_ahead is None else bool(render_ahead)
         self._auto_start = start_ns is None     # then the run starts with the first camera start()
         self.start_ns = self.clock() if start_ns is None else int(start_ns)
         self.connected = True               # False: global_camera_info() is [] (no camera cable)
         self.busy = False                   # a Picamera2 holds the camera
-        self.frames_delivered = 0
+        self.counts = FrameCounts()
         self._stalls: list[list[float]] = []
         self._texture = None
 
-    def clock(self) -> int:
-        """The world's time (ns): the given clock, stood still while hw_sim computes (free_render)."""
-        return self._clock() - self._paused_ns
-
-    @contextlib.contextmanager
-    def standstill(self):
-        """On the Pi a frame costs its consumer nothing; here rendering takes ms and a new texture
-        tile tens of ms. With free_render that time does not pass in the world, so the camera's
-        pacing leaves the consumer exactly the time a real camera would."""
-        t0, self._depth = self._clock(), self._depth + 1
-        try:
-            yield
-        finally:
-            self._depth -= 1
-            if self.free_render and not self._depth:        # count nested stand-stills once
-                self._paused_ns += self._clock() - t0
+    @property
+    def frames_delivered(self) -> int:
+        """Requests handed out so far (FrameCounts.delivered)."""
+        return self.counts.delivered
 
     def t_s(self, ns: int) -> float:
         return (ns - self.start_ns) / 1e9
@@ -91,8 +84,17 @@ class SimWorld:
     def stalled(self) -> bool:
         return bool(self._stalls) and self._stalls[-1][1] == math.inf
 
-    def _lost(self, t_ns):
-        return next(((a, b) for a, b in reversed(self._stalls) if a <= t_ns < b), None)
+    def lost(self, frames: np.ndarray, timestamps: np.ndarray, latency_ns: int) -> np.ndarray:
+        """Which frames never complete: their buffer was due during a stall, or drop_prob drew them
+        (from the seed and the frame number; never the first frame)."""
+        done = timestamps + latency_ns
+        gone = np.zeros(len(frames), bool)
+        for a, b in self._stalls:
+            gone |= (done >= a) & (done < b)
+        p = self.sim.drop_prob
+        if p:
+            gone |= (hash_uniform(self.sim.seed, 0xD0, frames, 0) < p) & (frames > 0)
+        return gone
 
     def camera_info(self) -> list[dict]:
         s = self.sensor
