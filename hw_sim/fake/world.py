@@ -8,7 +8,9 @@ from dataclasses import replace
 import numpy as np
 
 from ..config import SimConfig
+from ..light import led_light
 from ..motion import Motion
+from ..pose import PoseModel
 from ..render import Simulator
 from ..texture import hash_uniform
 from .sensors import SENSORS
@@ -47,6 +49,7 @@ class SimWorld:
         s = self.sim
         self.motion = Motion(s.profile, s.speed_m_s, s.duration_s, s.accel_m_s2, s.stopgo_period_s,
                              s.stopgo_dwell_s)
+        self.poses = PoseModel(s, self.motion)
         self.clock, self.sleep = clock, sleep
         # a camera thread renders ahead on the wall clock; an injected clock renders on demand
         self.render_ahead = clock is time.monotonic_ns if render_ahead is None else bool(render_ahead)
@@ -71,6 +74,16 @@ class SimWorld:
         0 at the first frame unless start_ns was given, like the crawler's own count."""
         return float(self.motion.distance(self.t_s(sensor_timestamp_ns)))
 
+    def truth(self, sensor_timestamp_ns: int) -> dict[str, float]:
+        """Ground truth at a SensorTimestamp: distance_m, speed_m_s, tilt_deg, camera_height_m (H),
+        led_light (1 lit, 0 in a blackout, instantaneous), dropped (1 inside a dropped burst)."""
+        t = self.t_s(sensor_timestamp_ns)
+        c = self.sim
+        return {"distance_m": float(self.motion.distance(t)), "speed_m_s": float(self.motion.speed(t)),
+                "tilt_deg": float(self.poses.tilt_deg(t)), "camera_height_m": float(self.poses.camera_height_m(t)),
+                "led_light": float(led_light(t, 0.0, c.led_blackouts, c.blackout_decay_ms / 1000)),
+                "dropped": float(any(a <= t < b for a, b in c.dropped_bursts))}
+
     def stall(self) -> None:
         """Frames completing from now until resume() are lost, as with a loose ribbon cable."""
         if not self.stalled:
@@ -85,12 +98,16 @@ class SimWorld:
         return bool(self._stalls) and self._stalls[-1][1] == math.inf
 
     def lost(self, frames: np.ndarray, timestamps: np.ndarray, latency_ns: int) -> np.ndarray:
-        """Which frames never complete: their buffer was due during a stall, or drop_prob drew them
-        (from the seed and the frame number; never the first frame)."""
+        """Which frames never complete: their buffer was due during a stall, they started in one of
+        SimConfig.dropped_bursts (world time), or drop_prob drew them (from the seed and the frame
+        number). Never the first frame of a start() but for a stall."""
         done = timestamps + latency_ns
         gone = np.zeros(len(frames), bool)
         for a, b in self._stalls:
             gone |= (done >= a) & (done < b)
+        t = (timestamps - self.start_ns) / 1e9
+        for a, b in self.sim.dropped_bursts:
+            gone |= (t >= a) & (t < b) & (frames > 0)
         p = self.sim.drop_prob
         if p:
             gone |= (hash_uniform(self.sim.seed, 0xD0, frames, 0) < p) & (frames > 0)
