@@ -110,8 +110,8 @@ class Masonry(_Normalised):
         course_cols = n / courses
         period_rows = (self.brick_mm[0] + self.mortar_mm) / self.mm
         chip = M["edge_chip_mm"] * (value_noise(rows, cols, M["chip_cell_mm"] / self.mm, n, s, 70) - 0.5)
-        j = np.floor(cols / course_cols)                           # course index, wraps with the columns
-        v_mm = (cols - j * course_cols) * mm_c                     # across the course, from its joint
+        j = np.floor(cols / course_cols) % courses                 # course index, wraps with the columns
+        v_mm = (cols - np.floor(cols / course_cols) * course_cols) * mm_c   # across the course, from its joint
         shift = (j % 2) * period_rows / 2                          # running bond
         along = rows[:, None] + shift[None, :]
         i = np.floor(along / period_rows)

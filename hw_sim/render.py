@@ -91,7 +91,7 @@ class Simulator:
         self._dynamic = self.poses.moves
         self._K = K
         self._view0 = self._view(self.tilt_rad, self.camera_height_m, 0.0)
-        self._levels = self._plan_levels(self._view0)
+        self._levels, self._plans = self._plan_levels(self._view0), {}
         self._level_maps = self._scaled_maps(self._view0)
         self._check_region(self._view0)
         self.blur_samples = self._blur_samples()
@@ -199,9 +199,10 @@ class Simulator:
         pose = self.pose(tau)
         if self._dynamic:
             view = self._view(pose["tilt"], pose["H"], pose["sway"])
-            maps = self._scaled_maps(view)
+            levels = self._levels_for(pose["tilt"], view)
+            maps = self._scaled_maps(view, levels)
         else:
-            view, maps = self._view0, self._level_maps
+            view, maps, levels = self._view0, self._level_maps, self._levels
         rows_t = self.row_times(tau) if c.readout_ms > 0 else tau
         if exposure > 0:   # centre of the path travelled during the exposure, and its length
             d0 = self.motion.distance(np.asarray(rows_t) - exposure / 2)
@@ -213,7 +214,7 @@ class Simulator:
             blur = 0.0
         off_c = -self.radius_m * pose["roll"] / tex.m_per_texel_circ - 0.5
         out = None
-        for lv, maps, (r0, r1, c0, c1), orow in self._bands(view, maps, off_r, off_c):
+        for lv, maps, (r0, r1, c0, c1), orow in self._bands(view, maps, off_r, off_c, levels):
             Rk, Ck = maps[0], maps[1]
             s = 0.5 ** lv.k
             region = self._blurred_region(lv.k, r0, r1, c0, c1, blur * s)
@@ -242,10 +243,10 @@ class Simulator:
         y = (view.R[v0:v1, u0:u1] + orow + 0.5) * self.texture.m_per_texel
         out[v0:v1, u0:u1] += lobe * inside(y, self.cfg.wet_patches)
 
-    def _bands(self, view: _View, maps, off_r, off_c):
+    def _bands(self, view: _View, maps, off_r, off_c, levels=None):
         """Per pyramid level: its maps, the texture region [r0, r1) x [c0, c1) its rows need at
         these offsets, and its rows' axial offsets."""
-        for lv, m in zip(self._levels, maps):
+        for lv, m in zip(levels or self._levels, maps):
             s = 0.5 ** lv.k
             orow = off_r[lv.a:lv.b] if np.ndim(off_r) else off_r
             rlo = float(np.min(view.rmin[lv.a:lv.b] + orow)) * s
@@ -333,10 +334,20 @@ class Simulator:
             levels.append(_Level(k, a, b, None if full else w[k, a:b].astype(np.float32)))
         return levels
 
-    def _scaled_maps(self, v: _View):
+    def _levels_for(self, tilt: float, view: _View) -> list[_Level]:
+        """The pyramid plan of a moving camera: the first one, unless the tilt moved (a schedule)
+        more than 1.5 deg from it; then one per whole degree, made once."""
+        if abs(tilt - self.tilt_rad) < math.radians(1.5):
+            return self._levels
+        key = round(math.degrees(tilt))
+        if key not in self._plans:
+            self._plans[key] = self._plan_levels(view)
+        return self._plans[key]
+
+    def _scaled_maps(self, v: _View, levels=None):
         """Per level: (R, C) of its row band scaled to level-k texels, and the band's column span."""
         out = []
-        for lv in self._levels:
+        for lv in levels or self._levels:
             s = np.float32(0.5 ** lv.k)
             C = v.C[lv.a:lv.b]
             out.append((v.R[lv.a:lv.b] * s, C * s, float(C.min()), float(C.max())))

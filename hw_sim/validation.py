@@ -127,6 +127,8 @@ def _validate_mount(c: SimConfig) -> None:
     else:
         _check(c, "offset_m", 0 < c.H_m < c.pipe_diameter_m,
                f"puts the camera outside the pipe (H = {c.H_m:.4f} m, diameter {c.pipe_diameter_m} m)")
+    for t, deg in c.tilt_schedule:
+        _check(c, "tilt_schedule", abs(deg) <= MAX_TILT_DEG, f"has tilt {deg:g} outside +-{MAX_TILT_DEG:g} deg")
     _range(c, "tilt_deg", -MAX_TILT_DEG, MAX_TILT_DEG)
 
 
@@ -164,8 +166,6 @@ def _validate_pairs(c: SimConfig) -> None:
         keys = [k for k, _ in getattr(c, name)]
         _check(c, name, all(a < b for a, b in zip(keys, keys[1:])),
                f"needs keyframes in strictly increasing {what} (a step is two close keyframes)")
-    for t, deg in c.tilt_schedule:
-        _check(c, "tilt_schedule", abs(deg) <= MAX_TILT_DEG, f"has tilt {deg:g} outside +-{MAX_TILT_DEG:g} deg")
     lift = max((mm for _, mm in c.height_profile), default=0.0) + c.bounce_mm
     drop = -min((mm for _, mm in c.height_profile), default=0.0) + c.bounce_mm
     _check(c, "height_profile", lift < 800.0 * c.H_m and drop < 500 * c.H_m,
