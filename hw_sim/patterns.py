@@ -29,7 +29,7 @@ CONCRETE = {
 }
 # Masonry: per-block shade, mortar depth, fired-clay grain, chipped joint edges (all in detail units
 # before normalisation, which is measured on a sample of the wall itself).
-MASONRY = {"block_shade": 1.0, "mortar": -2.2, "surface": 0.6,     # surface: concrete-like grain and pores
+MASONRY = {"block_shade": 1.0, "mortar": -2.6, "surface": 1.3,     # surface: concrete-like grain and pores
            "edge_soft_mm": 1.5, "edge_chip_mm": 1.2, "chip_cell_mm": 6.0}
 IMAGE_BLEND_CELLS = 1.7    # the blend between the two image layers varies over this many image heights
 
