@@ -34,23 +34,34 @@ MASONRY = {"block_shade": 1.0, "mortar": -2.6, "surface": 1.3,     # surface: co
 IMAGE_BLEND_CELLS = 1.7    # the blend between the two image layers varies over this many image heights
 
 
-def _coarse_layers(rows, cols, n_cols, seed, layers, salt0):
-    """Sum of value-noise layers on the COARSE grid, upsampled bilinearly to rows x cols.
+def _coarse_grid(rows, cols):
+    """The COARSE grid's sample coordinates of rows x cols.
 
     Samples sit at global texel coordinates r0 + COARSE*j + (COARSE-1)/2, which is where
     cv2.resize(INTER_LINEAR) puts source pixel centres, so every tile interpolates the same global
     samples and the result is seamless (rows/cols start on a multiple of COARSE).
     """
     half = (COARSE - 1) / 2
-    cr = rows[0] + COARSE * np.arange(len(rows) // COARSE) + half
-    cc = cols[0] + COARSE * np.arange(len(cols) // COARSE) + half
-    v = sum(a * (value_noise(cr, cc, L, n_cols, seed, salt0 + i) - 0.5) for i, (L, a) in enumerate(layers))
+    return (rows[0] + COARSE * np.arange(len(rows) // COARSE) + half,
+            cols[0] + COARSE * np.arange(len(cols) // COARSE) + half)
+
+
+def _upsample(v, rows, cols) -> np.ndarray:
     return cv2.resize(np.asarray(v, np.float32), (len(cols), len(rows)), interpolation=cv2.INTER_LINEAR)
+
+
+def _coarse_layers(rows, cols, n_cols, seed, layers, salt0):
+    """Sum of value-noise layers (zero mean) on the COARSE grid, upsampled bilinearly to rows x cols."""
+    cr, cc = _coarse_grid(rows, cols)
+    return _upsample(sum(a * (value_noise(cr, cc, L, n_cols, seed, salt0 + i) - 0.5)
+                         for i, (L, a) in enumerate(layers)), rows, cols)
 
 
 def stains(rows, cols, n_cols, seed) -> np.ndarray:
     """Large faint multiplicative shading (0.14-0.46 m), ~1."""
-    return 1 + 2 * _coarse_layers(rows, cols, n_cols, seed, CONCRETE["stains"], 20)
+    cr, cc = _coarse_grid(rows, cols)
+    return _upsample(1 + sum(a * 2 * (value_noise(cr, cc, L, n_cols, seed, 20 + i) - 0.5)
+                             for i, (L, a) in enumerate(CONCRETE["stains"])), rows, cols)
 
 
 def _grain(rows, cols, n_cols, seed, layers, salt0):

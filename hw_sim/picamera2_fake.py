@@ -5,15 +5,19 @@ API (names, signatures, config dicts, errors, array shapes, metadata units) and 
 tables of the OV5647, IMX219 and IMX708, and renders each frame with hw_sim's Simulator through the
 sensor mode, ScalerCrop and output size in force, so the chain plan -> intrinsics -> odometry is
 checked end to end against ground truth. Frame k has SensorTimestamp start + k * frame duration on
-the world's clock; like the real camera, a consumer that falls behind gets the newest frame.
+the world's clock (wall time by default), whatever the consumer does; like the real camera, a
+consumer that falls behind gets the newest completed frame and the others are dropped, with at most
+buffer_count buffers in use.
 
     world = SimWorld("imx219", tilt_deg=20, speed_m_s=0.2)     # any SimConfig field
     Picamera2 = make_picamera2(world)        # the class crawlerd injects; called as Picamera2(0)
     world.true_distance_m(request.get_metadata()["SensorTimestamp"])    # 0 at the first frame
 
-hw_sim's own render time does not pass in the world (SimWorld.standstill), as a real frame costs its
-consumer nothing. Simplifications (docs/simulator.md): no sensor flips, lores is main resized, raw
-buffers are zeros, controls act from the next frame to start, captures are blocking only.
+On the wall clock a camera thread renders each frame (and the texture tiles ahead) before it
+completes, as the ISP fills buffers, so a frame costs its consumer nothing; on an injected clock
+(ManualClock) frames are rendered on demand, deterministically. Simplifications (docs/simulator.md):
+no sensor flips, lores is main resized, raw buffers are zeros, controls act from the next frame to
+start, captures are blocking only. The parts live in hw_sim/fake/; this module re-exports them.
 """
 from .fake.camera import FakePicamera2, make_picamera2
 from .fake.configs import AF_CONTROLS, CONTROLS, NR_FAST, NR_HIGH_QUALITY, NR_MINIMAL, RGB_BYTES, YUV_FORMATS
