@@ -12,6 +12,7 @@ odometry lost. Not a test: it prints figures (docs/accuracy.md).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import sys
 import time
@@ -27,13 +28,11 @@ LIT = dict(lighting=True, vignetting=True, noise_sigma=1.5)
 
 def photo() -> dict:
     """A photographic wall (scikit-image's gravel) if scikit-image is installed, else masonry."""
-    try:
-        import skimage  # noqa: F401
+    if importlib.util.find_spec("skimage") is not None:
         return dict(texture="image", texture_image="skimage:gravel", image_mm_per_px=0.4)
-    except ImportError:
-        print("stress: scikit-image missing (pip install -e '.[textures]'): the photo case uses masonry",
-              file=sys.stderr)
-        return dict(texture="masonry")
+    print("stress: scikit-image missing (pip install -e '.[textures]'): the photo case uses masonry",
+          file=sys.stderr)
+    return dict(texture="masonry")
 
 
 # name: (SimConfig fields, extra crawlerd --set overrides). Tilt is also the crawler's mount tilt.

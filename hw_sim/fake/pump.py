@@ -19,9 +19,9 @@ from ..render import Simulator
 from .timeline import FrameCounts, FrameSettings
 
 _log = logging.getLogger(__name__)
-AHEAD_S = 0.040             # render up to this long before a frame completes
+AHEAD_S = 0.080             # render up to this long before a frame completes
 PREFETCH_S = 0.3            # when idle, generate the texture tiles of the view this far ahead
-CACHE_FRAMES = 8
+CACHE_FRAMES = 16
 
 
 @dataclass(frozen=True)

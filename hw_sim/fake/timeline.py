@@ -12,6 +12,7 @@ hw_sim takes to render.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -89,7 +90,7 @@ class FrameQueue:
     latency_ns: int                     # SensorTimestamp -> the buffer is complete
     buffer_count: int
     queue: bool                         # picamera2 keeps the latest completed request
-    lost: callable                      # (frames, timestamps) -> bool mask of frames never completed
+    lost: Callable[[np.ndarray, np.ndarray], np.ndarray]   # (frames, timestamps) -> never completed
     counts: FrameCounts
     next_k: int = 0                     # the first frame not yet completed (or lost)
     kept: int | None = None             # picamera2's latest completed request
