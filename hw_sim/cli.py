@@ -54,15 +54,15 @@ def _ints(n: int, what: str) -> Callable[[str], tuple[int, ...]]:
     return parse
 
 
-def _intervals(s: str) -> tuple[tuple[float, float], ...]:
-    """'1.0:1.3,2.0:2.2' -> ((1.0, 1.3), (2.0, 2.2))."""
+def _pairs(s: str) -> tuple[tuple[float, float], ...]:
+    """'1.0:1.3,2.0:2.2' -> ((1.0, 1.3), (2.0, 2.2)): intervals a:b or keyframes key:value."""
     out = []
     for part in filter(None, s.split(",")):
         try:
             a, b = part.split(":")
             out.append((float(a), float(b)))
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected START:END[,START:END...] in metres, got {s!r}") from None
+            raise argparse.ArgumentTypeError(f"expected A:B[,A:B...], got {s!r}") from None
     return tuple(out)
 
 
@@ -75,10 +75,13 @@ _TYPES: dict[str, tuple[Callable[[str], Any], str]] = {
     "float": (float, "X"),
     "float | None": (_none_or(float), "X"),
     "str": (str, "S"),
+    "str | None": (_none_or(str), "S"),
+    "tuple[float, float]": (_floats(2, "A,B"), "A,B"),
+    "tuple[float, float] | None": (_none_or(_floats(2, "U,V")), "U,V"),
     "tuple[int, int, int, int] | None": (_none_or(_ints(4, "X0,Y0,W,H")), "X0,Y0,W,H"),
     "tuple[int, int] | None": (_none_or(_ints(2, "W,H or WxH")), "W,H"),
     "tuple[float, float, float, float, float] | None": (_none_or(_floats(5, "K1,K2,P1,P2,K3")), "K1,K2,P1,P2,K3"),
-    "tuple[tuple[float, float], ...]": (_intervals, "A:B[,A:B]"),
+    "tuple[tuple[float, float], ...]": (_pairs, "A:B[,A:B]"),
 }
 
 
@@ -98,6 +101,7 @@ def build_parser() -> argparse.ArgumentParser:
                            default=d["default"], help=help_)
         else:
             typ, metavar = _TYPES[d["type"]]
+            metavar = d["metavar"] or metavar
             r.add_argument(d["flag"], dest=d["name"], type=typ, default=d["default"], metavar=metavar,
                            help=help_)
     sub.add_parser("params", help="print every parameter as a Markdown table")

@@ -9,33 +9,13 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
-PROFILES = ("constant", "accel", "stopgo", "reverse")
-PRESETS = ("ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow", "slower",
-           "veryslow")
-MAX_SPEED_M_S = 2.0       # the studied range is 0..1 m/s; a little headroom for stress runs
-MAX_TILT_DEG = 60.0
-MAX_VIEW_DEG = 85.0       # |tilt| + vfov/2 + jitter beyond this looks along the pipe, not at the wall
+from .errors import BadValue, ConfigError, SimError
+from .validation import (MAX_SPEED_M_S, MAX_TILT_DEG, MAX_VIEW_DEG, PRESETS, PROFILES, TEXTURES, normalise,
+                         validate)
 
 
-class SimError(Exception):
-    """Root of every error hw_sim raises on purpose."""
-
-
-class BadValue(SimError, ValueError):
-    """A value given to hw_sim is unusable (the CLI exits 2)."""
-
-
-class ConfigError(BadValue):
-    """A SimConfig value is out of range; `.field` names the field."""
-
-    def __init__(self, name: str, value: Any, why: str):
-        self.field = name
-        self.value = value
-        super().__init__(f"{name}={value!r} {why}")
-
-
-def _f(default: Any, help: str, flag: str, unit: str = "") -> Any:
-    return field(default=default, metadata={"help": help, "flag": flag, "unit": unit})
+def _f(default: Any, help: str, flag: str, unit: str = "", metavar: str = "") -> Any:
+    return field(default=default, metadata={"help": help, "flag": flag, "unit": unit, "metavar": metavar})
 
 
 @dataclass(frozen=True)
@@ -62,7 +42,21 @@ class SimConfig:
         None, "camera-to-crown distance H; None: Eq. 3.4 from diameter, car width, offset",
         "--camera-height", "m")
     tilt_deg: float = _f(0.0, "camera pitch toward travel (0: looks straight up)", "--tilt", "deg")
+    tilt_schedule: tuple[tuple[float, float], ...] = _f(
+        (), "tilt keyframes t:deg, linear between, held before/after (replaces tilt_deg, which "
+        "then is the tilt at t = 0)", "--tilt-schedule", "s:deg", "T:DEG[,T:DEG...]")
+    height_profile: tuple[tuple[float, float], ...] = _f(
+        (), "extra ride height keyframes y:mm along the pipe (sediment: + lifts the camera toward the "
+        "crown), linear between, held before/after", "--height-profile", "m:mm", "Y:MM[,Y:MM...]")
     # --- wall surface ---
+    texture: str = _f("concrete", "wall pattern: " + ", ".join(TEXTURES), "--texture")
+    brick_mm: tuple[float, float] = _f((215.0, 65.0), "masonry: block length along the pipe, height around it",
+                                       "--brick", "mm")
+    mortar_mm: float = _f(10.0, "masonry: mortar joint width", "--mortar", "mm")
+    texture_image: str | None = _f(
+        None, "image: a grey image file tiled over the wall, or skimage:brick|gravel|grass (needs "
+        "scikit-image)", "--texture-image")
+    image_mm_per_px: float = _f(0.5, "image: wall size of one image pixel", "--image-mm-per-px", "mm")
     mm_per_texel: float = _f(0.2, "axial texture scale (the circumferential one is rounded to wrap)",
                              "--mm-per-texel", "mm")
     brightness: float = _f(128.0, "mean grey level of the wall at the image centre", "--brightness", "DN")
@@ -72,6 +66,18 @@ class SimConfig:
         "--featureless", "m")
     featureless_contrast: float = _f(0.02, "contrast left inside a featureless stretch",
                                      "--featureless-contrast")
+    wet_patches: tuple[tuple[float, float], ...] = _f(
+        (), "wet smooth stretches a:b (m along the pipe): faint grain, shading, and the LED's specular "
+        "highlight, fixed in the image", "--wet", "m")
+    wet_contrast: float = _f(0.06, "texture contrast left on a wet patch", "--wet-contrast")
+    wet_albedo: float = _f(0.8, "albedo factor of wet wall (wet concrete is darker)", "--wet-albedo")
+    wet_highlight: float = _f(2.0, "peak of the highlight, x the lit wall's mean (above ~1 it saturates)",
+                              "--wet-highlight")
+    wet_highlight_deg: float = _f(5.0, "angular radius of the highlight (Gaussian sigma)", "--wet-highlight-deg",
+                                  "deg")
+    wet_highlight_at: tuple[float, float] | None = _f(
+        None, "sensor pixel u,v of the highlight's centre (None: the LED's mirror point, where a ray meets "
+        "the wall square on)", "--wet-highlight-at", "px")
     # --- motion ---
     profile: str = _f("constant", "distance-vs-time profile: " + ", ".join(PROFILES), "--profile")
     speed_m_s: float = _f(0.2, "cruise speed (reverse: both ways)", "--speed", "m/s")
@@ -103,14 +109,23 @@ class SimConfig:
     flicker_amp: float = _f(0.0, "brightness flicker: gain 1 + A sin(2 pi f t)", "--flicker")
     flicker_hz: float = _f(2.0, "brightness flicker frequency", "--flicker-hz", "Hz")
     drop_prob: float = _f(0.0, "probability that a frame is dropped (never the first)", "--drop")
+    dropped_bursts: tuple[tuple[float, float], ...] = _f(
+        (), "time intervals a:b (s) in which the camera delivers no frame (never the first)", "--drop-bursts", "s")
+    led_blackouts: tuple[tuple[float, float], ...] = _f(
+        (), "time intervals a:b (s) with the LEDs off: dark, noisy frames", "--blackouts", "s")
+    blackout_ambient: float = _f(0.02, "light left with the LEDs off, x theirs", "--blackout-ambient")
+    blackout_noise_sigma: float = _f(2.0, "extra sensor noise in the dark (adds to noise_sigma in quadrature)",
+                                     "--blackout-noise", "DN")
+    blackout_decay_ms: float = _f(0.3, "LED light decay time constant after switching off", "--blackout-decay-ms",
+                                  "ms")
     # --- run ---
     seed: int = _f(0, "texture, jitter, noise and drop seed", "--seed")
     crf: int = _f(18, "libx264 constant quality (0 lossless .. 51)", "--crf")
     preset: str = _f("veryfast", "libx264 preset", "--preset")
 
     def __post_init__(self) -> None:
-        _normalise(self)
-        _validate(self)
+        normalise(self)
+        validate(self)
 
     # --- derived values used by the renderer, the sidecar and the CLI ---
     @property
@@ -153,118 +168,5 @@ def field_docs() -> list[dict[str, Any]]:
     return [dict(name=f.name, default=f.default, type=f.type, **f.metadata) for f in fields(SimConfig)]
 
 
-# ---------------------------------------------------------------------------------------------------
-
-def _set(cfg: SimConfig, name: str, value: Any) -> None:
-    object.__setattr__(cfg, name, value)
-
-
-def _normalise(c: SimConfig) -> None:
-    """Coerce JSON-ish values (lists, ints for floats) to the declared types, naming what fails."""
-    for name, n, typ in (("window", 4, int), ("output_size", 2, int), ("distortion", 5, float)):
-        v = getattr(c, name)
-        if v is None:
-            continue
-        try:
-            t = tuple(v)
-            if len(t) != n:
-                raise ValueError
-            if typ is int and any(float(x) != int(x) for x in t):
-                raise ValueError
-            _set(c, name, tuple(typ(x) for x in t))
-        except (TypeError, ValueError):
-            raise ConfigError(name, v, f"must be {n} {typ.__name__}s") from None
-    try:
-        fl = tuple((float(a), float(b)) for a, b in c.featureless)
-    except (TypeError, ValueError):
-        raise ConfigError("featureless", c.featureless, "must be a sequence of (start_m, end_m) pairs") from None
-    _set(c, "featureless", fl)
-    for f in fields(SimConfig):
-        v = getattr(c, f.name)
-        if f.type in ("float", "float | None") and v is not None:
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise ConfigError(f.name, v, "must be a finite number")
-            _set(c, f.name, float(v))
-        elif f.type == "int":
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or float(v) != int(v):
-                raise ConfigError(f.name, v, "must be an integer")
-            _set(c, f.name, int(v))
-        elif f.type == "bool" and not isinstance(v, bool):
-            raise ConfigError(f.name, v, "must be true or false")
-        elif f.type == "str" and not isinstance(v, str):
-            raise ConfigError(f.name, v, "must be a string")
-
-
-def _check(c: SimConfig, name: str, ok: bool, why: str) -> None:
-    if not ok:
-        raise ConfigError(name, getattr(c, name), why)
-
-
-def _range(c: SimConfig, name: str, lo: float, hi: float, lo_open: bool = False) -> None:
-    v = getattr(c, name)
-    ok = (lo < v if lo_open else lo <= v) and v <= hi
-    _check(c, name, ok, f"is outside {'(' if lo_open else '['}{lo:g}, {hi:g}]")
-
-
-def _validate(c: SimConfig) -> None:
-    _range(c, "width", 2, 8192)
-    _range(c, "height", 2, 8192)
-    _range(c, "vfov_deg", 1.0, 150.0)
-    _range(c, "hfov_deg", 1.0, 150.0)
-    _range(c, "fps", 0.0, 1000.0, lo_open=True)
-    if c.window is not None:
-        x0, y0, w, h = c.window
-        _check(c, "window", w > 0 and h > 0 and x0 >= 0 and y0 >= 0
-               and x0 + w <= c.width and y0 + h <= c.height,
-               f"must lie inside the {c.width}x{c.height} sensor with w, h > 0")
-    W, Hh = c.out_size
-    name = "output_size" if c.output_size is not None else ("window" if c.window is not None else "width")
-    if not (W % 2 == 0 and Hh % 2 == 0 and 16 <= W <= 4096 and 16 <= Hh <= 4096):
-        raise ConfigError(name, getattr(c, name),
-                          f"gives a {W}x{Hh} output frame; H.264 yuv420p needs even sizes in 16..4096")
-    _range(c, "pipe_diameter_m", 0.02, 10.0)
-    _range(c, "car_width_m", 0.0, 10.0, lo_open=True)
-    _check(c, "car_width_m", c.car_width_m < c.pipe_diameter_m,
-           f"must be smaller than pipe_diameter_m={c.pipe_diameter_m!r} (the car must fit in the pipe)")
-    if c.camera_height_m is not None:
-        _check(c, "camera_height_m", 0 < c.camera_height_m < c.pipe_diameter_m,
-               f"must be in (0, pipe_diameter_m={c.pipe_diameter_m!r}) (camera inside the pipe)")
-    else:
-        _check(c, "offset_m", 0 < c.H_m < c.pipe_diameter_m,
-               f"puts the camera outside the pipe (H = {c.H_m:.4f} m, diameter {c.pipe_diameter_m} m)")
-    _range(c, "tilt_deg", -MAX_TILT_DEG, MAX_TILT_DEG)
-    _range(c, "mm_per_texel", 0.02, 5.0)
-    _range(c, "brightness", 0.0, 255.0)
-    _range(c, "contrast", 0.0, 4.0)
-    for a, b in c.featureless:
-        _check(c, "featureless", a < b, f"has an interval ({a}, {b}) whose start is not before its end")
-    _range(c, "featureless_contrast", 0.0, 1.0)
-    _check(c, "profile", c.profile in PROFILES, f"is not one of {', '.join(PROFILES)}")
-    _range(c, "speed_m_s", 0.0, MAX_SPEED_M_S)
-    _range(c, "duration_s", 0.0, 24 * 3600.0, lo_open=True)
-    _range(c, "accel_m_s2", 0.0, 100.0, lo_open=True)
-    _range(c, "stopgo_period_s", 0.0, 3600.0, lo_open=True)
-    _range(c, "stopgo_dwell_s", 0.0, 3600.0)
-    _check(c, "stopgo_dwell_s", c.stopgo_dwell_s < c.stopgo_period_s,
-           f"must be shorter than stopgo_period_s={c.stopgo_period_s!r}")
-    _range(c, "start_m", -1e5, 1e5)
-    _range(c, "bounce_mm", 0.0, 500.0 * c.H_m)    # at most half of H
-    _range(c, "pitch_jitter_deg", 0.0, 10.0)
-    _range(c, "roll_deg", 0.0, 90.0)
-    _range(c, "sway_mm", 0.0, 250.0 * c.pipe_diameter_m)  # within the middle half of the pipe
-    for hz in ("bounce_hz", "pitch_jitter_hz", "roll_hz", "sway_hz", "flicker_hz"):
-        _range(c, hz, 0.0, 1000.0)
-    _range(c, "noise_sigma", 0.0, 100.0)
-    frame_ms = 1000.0 / c.fps
-    _range(c, "exposure_ms", 0.0, frame_ms)
-    _range(c, "blur_samples", 0, 64)
-    _range(c, "readout_ms", 0.0, frame_ms)
-    _range(c, "flicker_amp", 0.0, 0.9)
-    _range(c, "drop_prob", 0.0, 0.9)
-    _range(c, "seed", 0, 2**32 - 1)
-    _range(c, "crf", 0, 51)
-    _check(c, "preset", c.preset in PRESETS, f"is not an x264 preset ({', '.join(PRESETS)})")
-    view = abs(c.tilt_deg) + c.vfov_deg / 2 + c.pitch_jitter_deg
-    _check(c, "tilt_deg", view < MAX_VIEW_DEG,
-           f"with vfov_deg={c.vfov_deg:g} puts the frame edge {view:.1f} deg from vertical; "
-           f"keep |tilt| + vfov/2 + pitch jitter below {MAX_VIEW_DEG:g}")
+__all__ = ["BadValue", "ConfigError", "MAX_SPEED_M_S", "MAX_TILT_DEG", "MAX_VIEW_DEG", "PRESETS", "PROFILES",
+           "SimConfig", "SimError", "TEXTURES", "field_docs"]

@@ -2,7 +2,8 @@
 
 NAME.h264  raw Annex-B H.264 (libx264, yuv420p, grey in Y, U = V = 128), like `rpicam-vid -o`
 NAME.pts   `# timecode format v2`, one timestamp in ms per frame, like `rpicam-vid --save-pts`
-NAME.csv   frame,t_s,distance_m,speed_m_s (frame = index in the stream)
+NAME.csv   frame,t_s,distance_m,speed_m_s,tilt_deg,camera_height_m,led_light,wet,lost_before
+           (frame = index in the stream; GT_COLUMNS says what each means)
 NAME.json  every SimConfig field plus derived values (intrinsics of the output frame, ...)
 """
 from __future__ import annotations
@@ -21,11 +22,22 @@ import numpy as np
 from .config import BadValue, SimConfig, SimError
 from .render import Simulator
 
-GT_HEADER = "frame,t_s,distance_m,speed_m_s"
+GT_COLUMNS = {   # name: meaning, all at the frame's t (its top row, mid-exposure)
+    "frame": "index in the stream (dropped frames are not in it)",
+    "t_s": "the frame's time, s",
+    "distance_m": "true distance travelled since t = 0, m (forward positive)",
+    "speed_m_s": "true speed, m/s",
+    "tilt_deg": "true camera tilt (tilt_schedule or tilt_deg, plus pitch jitter), deg",
+    "camera_height_m": "true camera-to-crown distance H (height profile and bounce included), m",
+    "led_light": "LED light the frame collected, mean over its rows: 1 lit, ~0 in a blackout",
+    "wet": "share of the centre column's wall on a wet patch (0..1)",
+    "lost_before": "sensor frames lost just before this one (drop_prob, dropped_bursts)",
+}
+GT_HEADER = ",".join(GT_COLUMNS)
+GT_HEADER_V1 = "frame,t_s,distance_m,speed_m_s"     # before pose and disturbance columns
 PTS_HEADER = "# timecode format v2"
-GT_DTYPE = np.dtype([("frame", np.int64), ("t_s", np.float64), ("distance_m", np.float64),
-                     ("speed_m_s", np.float64)])
-SIDECAR_VERSION = 1
+GT_DTYPE = np.dtype([(n, np.int64 if n in ("frame", "lost_before") else np.float64) for n in GT_COLUMNS])
+SIDECAR_VERSION = 2
 
 
 class H264Writer:
@@ -91,18 +103,33 @@ def read_pts(path: str | os.PathLike) -> np.ndarray:
 
 
 def read_ground_truth(path: str | os.PathLike) -> np.ndarray:
-    """The ground-truth CSV as a structured array with fields frame, t_s, distance_m, speed_m_s."""
+    """The ground-truth CSV as a structured array with the fields of GT_COLUMNS. A version-1 file
+    (frame,t_s,distance_m,speed_m_s) has NaN tilt/height/light/wet and lost_before -1."""
     with open(path) as f:
         header = f.readline().strip()
-        if header != GT_HEADER:
+        if header not in (GT_HEADER, GT_HEADER_V1):
             raise SimError(f"{path}: header {header!r} is not {GT_HEADER!r}")
         data = np.loadtxt(f, delimiter=",", dtype=np.float64, ndmin=2)
+    names = header.split(",")
     out = np.empty(len(data), GT_DTYPE)
-    if len(data):
-        out["frame"] = data[:, 0].astype(np.int64)
-        for i, name in enumerate(GT_DTYPE.names[1:], start=1):
-            out[name] = data[:, i]
+    for name in GT_DTYPE.names:
+        if name in names:
+            out[name] = data[:, names.index(name)] if len(data) else []
+        else:
+            out[name] = -1 if GT_DTYPE[name].kind == "i" else np.nan
     return out
+
+
+def ground_truth_rows(sim: Simulator) -> Iterator[tuple[int, float, int, str]]:
+    """(sensor index, t, lost_before, CSV row without the frame index) of each kept frame."""
+    t, keep = sim.schedule()
+    last = -1
+    for k in np.flatnonzero(keep):
+        g = sim.truth(float(t[k]))
+        yield int(k), float(t[k]), int(k - last - 1), (
+            f"{t[k]:.9f},{g['distance_m']:.9f},{g['speed_m_s']:.9f},{g['tilt_deg']:.6f},"
+            f"{g['camera_height_m']:.9f},{g['led_light']:.6f},{g['wet']:.4f},{k - last - 1}")
+        last = k
 
 
 def sidecar(sim: Simulator, frames: int, last_t: float, files: dict[str, str]) -> dict:
@@ -131,6 +158,13 @@ def sidecar(sim: Simulator, frames: int, last_t: float, files: dict[str, str]) -
         "mm_per_texel_circumferential": tex.m_per_texel_circ * 1000.0,
         "texels_around": tex.n_cols,
         "frames": frames,
+        "ground_truth_columns": GT_COLUMNS,
+        "texture": cfg.texture,
+        "tilt_schedule": [list(k) for k in cfg.tilt_schedule],     # (t_s, tilt_deg), linear between
+        "height_profile": [list(k) for k in cfg.height_profile],   # (y_m, extra_height_mm), linear between
+        "led_blackouts": [list(k) for k in cfg.led_blackouts],     # s
+        "wet_patches": [list(k) for k in cfg.wet_patches],         # m along the pipe
+        "dropped_bursts": [list(k) for k in cfg.dropped_bursts],   # s
         "sensor_frames": int(len(t)),
         "dropped_frames": int(len(t) - keep.sum()),
         "blur_samples": sim.blur_samples if cfg.exposure_ms > 0 else 1,
@@ -201,9 +235,12 @@ def write_run(cfg: SimConfig, out_dir: str | os.PathLike, name: str,
         with H264Writer(tmp["h264"], sim.width, sim.height, cfg.fps, cfg.crf, cfg.preset) as enc, \
                 open(tmp["csv"], "w") as gt:
             gt.write(GT_HEADER + "\n")
+            rows = ground_truth_rows(sim)
             for f in prefetch(sim.frames()):
+                k, t, _, row = next(rows)
+                assert k == f.sensor_index
                 enc.write(f.image)
-                gt.write(f"{f.index},{f.t_s:.9f},{f.distance_m:.9f},{f.speed_m_s:.9f}\n")
+                gt.write(f"{f.index},{row}\n")
                 times.append(f.t_s)
                 if progress is not None:
                     progress(f.index + 1, total)

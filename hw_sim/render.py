@@ -24,8 +24,11 @@ import numpy as np
 
 from . import geometry as geo
 from .config import SimConfig, SimError
-from .motion import Motion, jitter, sine
-from .texture import LEVELS, WallTexture
+from .light import led_light
+from .motion import Motion, sine
+from .patterns import make_pattern
+from .pose import PoseModel
+from .texture import LEVELS, Stretch, WallTexture, inside
 
 LOD_BIAS = 0.5          # start blending in level 1 at a footprint of 2^0.5 texels per pixel
 MAX_BLUR_SAMPLES = 16
@@ -52,6 +55,7 @@ class _View:
     gain: np.ndarray | None  # lighting x vignetting, float32 (h, w), or None when both are off
     rmin: np.ndarray        # per-row min / max of R (for the texture region a band needs)
     rmax: np.ndarray
+    spec: tuple | None = None   # (v0, v1, u0, u1, lobe): the wet highlight's pixels, or None
 
 
 @dataclass
@@ -79,11 +83,15 @@ class Simulator:
         self._xn, self._yn = geo.normalised_grid(K, cfg.window_px, cfg.out_size, cfg.distortion)
         self.motion = Motion(cfg.profile, cfg.speed_m_s, cfg.duration_s, cfg.accel_m_s2,
                              cfg.stopgo_period_s, cfg.stopgo_dwell_s)
+        stretches = tuple(Stretch(a, b, cfg.featureless_contrast) for a, b in cfg.featureless) + tuple(
+            Stretch(a, b, cfg.wet_contrast, cfg.wet_albedo) for a, b in cfg.wet_patches)
         self.texture = WallTexture(cfg.seed, cfg.mm_per_texel, 2 * math.pi * self.radius_m, cfg.contrast,
-                                   cfg.featureless, cfg.featureless_contrast)
-        self._dynamic = cfg.bounce_mm > 0 or cfg.pitch_jitter_deg > 0 or cfg.sway_mm > 0
+                                   stretches, make_pattern(cfg, cfg.mm_per_texel))
+        self.poses = PoseModel(cfg, self.motion)
+        self._dynamic = self.poses.moves
+        self._K = K
         self._view0 = self._view(self.tilt_rad, self.camera_height_m, 0.0)
-        self._levels = self._plan_levels(self._view0)
+        self._levels, self._plans = self._plan_levels(self._view0), {}
         self._level_maps = self._scaled_maps(self._view0)
         self._check_region(self._view0)
         self.blur_samples = self._blur_samples()
@@ -99,10 +107,12 @@ class Simulator:
     # --- frame schedule -----------------------------------------------------------------------------
     def schedule(self) -> tuple[np.ndarray, np.ndarray]:
         """(sensor frame times, kept mask): frames at k/fps for 0 <= k/fps <= duration; dropped
-        frames are drawn from the seed, never the first."""
+        frames are drawn from the seed or fall in dropped_bursts, never the first."""
         n = int(math.floor(self.cfg.duration_s * self.cfg.fps + 1e-9)) + 1
         t = np.arange(n) / self.cfg.fps
         keep = np.random.default_rng([self.cfg.seed, 0xD0]).random(n) >= self.cfg.drop_prob
+        for a, b in self.cfg.dropped_bursts:
+            keep &= ~((t >= a) & (t < b))
         keep[0] = True
         return t, keep
 
@@ -118,17 +128,30 @@ class Simulator:
     # --- rendering ----------------------------------------------------------------------------------
     def render(self, t_s: float) -> np.ndarray:
         """The uint8 (height, width) frame whose top row is mid-exposure at t_s, with every
-        configured disturbance: blur, rolling shutter, camera motion, light, flicker, noise."""
+        configured disturbance: blur, rolling shutter, camera motion, light, blackouts, flicker, noise."""
         c = self.cfg
         acc = self.render_linear(t_s)
         scale = c.brightness * (1.0 + float(sine(t_s, c.flicker_amp, c.flicker_hz)))
-        acc *= np.float32(scale)
-        if c.noise_sigma > 0:
+        sigma = np.float32(c.noise_sigma)
+        if c.led_blackouts:
+            led = led_light(self.row_times(t_s), c.exposure_ms / 1000.0, c.led_blackouts, c.blackout_decay_ms / 1000)
+            light = c.blackout_ambient + (1.0 - c.blackout_ambient) * led
+            acc *= (light * scale).astype(np.float32)[:, None]
+            sigma = np.sqrt(c.noise_sigma ** 2 + ((1.0 - led) * c.blackout_noise_sigma) ** 2).astype(np.float32)[:, None]
+        else:
+            acc *= np.float32(scale)
+        if np.any(sigma > 0):
             rng = np.random.default_rng([c.seed, 0x5E, int(round(t_s * 1e6)) & 0xFFFFFFFFFFFF])
-            acc += rng.standard_normal(acc.shape, dtype=np.float32) * np.float32(c.noise_sigma)
+            acc += rng.standard_normal(acc.shape, dtype=np.float32) * sigma
         acc += np.float32(0.5)
         np.clip(acc, 0, 255, out=acc)
         return acc.astype(np.uint8)
+
+    def row_times(self, t_s: float):
+        """Mid-exposure time of each output row (rolling shutter), or t_s for all (global)."""
+        if self.cfg.readout_ms <= 0:
+            return np.full(self.height, t_s)
+        return t_s + (self.cfg.readout_ms / 1000.0) * np.arange(self.height) / max(self.height - 1, 1)
 
     def render_linear(self, t_s: float) -> np.ndarray:
         """Float32 image of the wall albedo (mean ~1) times lighting/vignetting, blurred over the
@@ -146,14 +169,28 @@ class Simulator:
 
     def pose(self, t_s: float) -> dict[str, float]:
         """Camera pose at t: tilt (rad), H (m), sway x (m), roll (rad)."""
+        return self.poses.at(t_s)
+
+    def truth(self, t_s: float) -> dict[str, float]:
+        """Ground truth of the frame at t_s: distance, speed, true tilt and H, the LEDs' light,
+        the share of the centre column over wet wall."""
         c = self.cfg
-        pitch = float(jitter(t_s, c.pitch_jitter_deg, c.pitch_jitter_hz, c.seed, 1))
-        return {
-            "tilt": self.tilt_rad + math.radians(pitch),
-            "H": self.camera_height_m + float(sine(t_s, c.bounce_mm, c.bounce_hz)) / 1000.0,
-            "sway": float(sine(t_s, c.sway_mm, c.sway_hz, 1.0)) / 1000.0,
-            "roll": math.radians(float(sine(t_s, c.roll_deg, c.roll_hz))),
-        }
+        led = led_light(self.row_times(t_s), c.exposure_ms / 1000.0, c.led_blackouts, c.blackout_decay_ms / 1000)
+        wet = 0.0
+        if c.wet_patches:
+            pose = self.pose(t_s)
+            y = c.start_m + self.distance_at(t_s) + self._centre_column_y(pose)
+            wet = float(inside(y, c.wet_patches).mean())
+        return {"distance_m": self.distance_at(t_s), "speed_m_s": self.speed_at(t_s),
+                "tilt_deg": float(self.poses.tilt_deg(t_s)), "camera_height_m": float(self.poses.camera_height_m(t_s)),
+                "led_light": float(led.mean()), "wet": wet}
+
+    def _centre_column_y(self, pose) -> np.ndarray:
+        """Axial wall position (m, from the camera) of the centre column's pixels at this pose."""
+        col = self.width // 2
+        y, _, _, _ = geo.wall_coords(self._xn[:, col], self._yn[:, col], pose["tilt"], pose["sway"],
+                                     self.radius_m - pose["H"], self.radius_m)
+        return y
 
     def _render_instant(self, tau: float, exposure: float = 0.0) -> np.ndarray:
         """One camera pose at tau; travel during `exposure` (s) is an axial box blur."""
@@ -162,12 +199,11 @@ class Simulator:
         pose = self.pose(tau)
         if self._dynamic:
             view = self._view(pose["tilt"], pose["H"], pose["sway"])
-            maps = self._scaled_maps(view)
+            levels = self._levels_for(pose["tilt"], view)
+            maps = self._scaled_maps(view, levels)
         else:
-            view, maps = self._view0, self._level_maps
-        rows_t = tau
-        if c.readout_ms > 0:
-            rows_t = tau + (c.readout_ms / 1000.0) * np.arange(self.height) / (self.height - 1)
+            view, maps, levels = self._view0, self._level_maps, self._levels
+        rows_t = self.row_times(tau) if c.readout_ms > 0 else tau
         if exposure > 0:   # centre of the path travelled during the exposure, and its length
             d0 = self.motion.distance(np.asarray(rows_t) - exposure / 2)
             d1 = self.motion.distance(np.asarray(rows_t) + exposure / 2)
@@ -178,13 +214,9 @@ class Simulator:
             blur = 0.0
         off_c = -self.radius_m * pose["roll"] / tex.m_per_texel_circ - 0.5
         out = None
-        for lv, (Rk, Ck, cmin, cmax) in zip(self._levels, maps):
+        for lv, maps, (r0, r1, c0, c1), orow in self._bands(view, maps, off_r, off_c, levels):
+            Rk, Ck = maps[0], maps[1]
             s = 0.5 ** lv.k
-            orow = off_r[lv.a:lv.b] if np.ndim(off_r) else off_r
-            rlo = float(np.min(view.rmin[lv.a:lv.b] + orow)) * s
-            rhi = float(np.max(view.rmax[lv.a:lv.b] + orow)) * s
-            r0, r1 = math.floor(rlo) - 1, math.floor(rhi) + 3
-            c0, c1 = math.floor((cmin + off_c) * s) - 1, math.floor((cmax + off_c) * s) + 3
             region = self._blurred_region(lv.k, r0, r1, c0, c1, blur * s)
             if np.ndim(orow):
                 mapy = Rk + (np.asarray(orow) * s - r0).astype(np.float32)[:, None]
@@ -200,7 +232,39 @@ class Simulator:
                 out[lv.a:lv.b] += lv.weight * img
         if view.gain is not None:
             out *= view.gain
+        if view.spec is not None:
+            self._add_highlight(out, view, off_r)
         return out
+
+    def _add_highlight(self, out: np.ndarray, view: _View, off_r) -> None:
+        """The LED's specular highlight, fixed in the image, where the wall under it is wet."""
+        v0, v1, u0, u1, lobe = view.spec
+        orow = off_r[v0:v1, None] if np.ndim(off_r) else off_r
+        y = (view.R[v0:v1, u0:u1] + orow + 0.5) * self.texture.m_per_texel
+        out[v0:v1, u0:u1] += lobe * inside(y, self.cfg.wet_patches)
+
+    def _bands(self, view: _View, maps, off_r, off_c, levels=None):
+        """Per pyramid level: its maps, the texture region [r0, r1) x [c0, c1) its rows need at
+        these offsets, and its rows' axial offsets."""
+        for lv, m in zip(levels or self._levels, maps):
+            s = 0.5 ** lv.k
+            orow = off_r[lv.a:lv.b] if np.ndim(off_r) else off_r
+            rlo = float(np.min(view.rmin[lv.a:lv.b] + orow)) * s
+            rhi = float(np.max(view.rmax[lv.a:lv.b] + orow)) * s
+            cmin, cmax = m[2], m[3]
+            yield lv, m, (math.floor(rlo) - 1, math.floor(rhi) + 3,
+                          math.floor((cmin + off_c) * s) - 1, math.floor((cmax + off_c) * s) + 3), orow
+
+    def prefetch(self, t_s: float, budget: int = 1 << 30) -> bool:
+        """Generate the texture tiles a frame at t_s will need (the undisturbed view), at most
+        `budget` new ones, so that rendering it later finds them cached. True: all are cached."""
+        tex = self.texture
+        off_r = (self.cfg.start_m + self.motion.distance(t_s)) / tex.m_per_texel - 0.5
+        for lv, _, (r0, r1, c0, c1), _ in self._bands(self._view0, self._level_maps, off_r, -0.5):
+            budget -= tex.ensure(lv.k, r0, r1, c0, c1, budget)
+            if budget <= 0:
+                return False
+        return True
 
     def _blurred_region(self, k: int, r0: int, r1: int, c0: int, c1: int, length: float) -> np.ndarray:
         """Texture level k over [r0, r1) x [c0, c1), box-filtered along rows over `length` texels."""
@@ -229,7 +293,27 @@ class Simulator:
             gain = v if gain is None else gain * v
         if gain is not None:
             gain = gain.astype(np.float32)
-        return _View(R, C, gain, R.min(axis=1), R.max(axis=1))
+        spec = self._highlight(xn, yn, tilt) if c.wet_patches and c.wet_highlight > 0 else None
+        return _View(R, C, gain, R.min(axis=1), R.max(axis=1), spec)
+
+    def _highlight(self, xn, yn, tilt: float):
+        """The highlight's lobe: wet_highlight x a Gaussian in the angle between each pixel's ray and
+        the highlight's (the LED's mirror point: the ray square onto the wall; or a given pixel)."""
+        c = self.cfg
+        if c.wet_highlight_at is None:
+            hx, hy = 0.0, math.tan(tilt)    # straight up to the crown (the wall normal, camera at x = 0)
+        else:
+            fx, fy, cx, cy = self._K
+            hx, hy = (c.wet_highlight_at[0] - cx) / fx, (c.wet_highlight_at[1] - cy) / fy
+        cos = (xn * hx + yn * hy + 1) / np.sqrt((xn * xn + yn * yn + 1) * (hx * hx + hy * hy + 1))
+        angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+        lobe = c.wet_highlight * np.exp(-0.5 * (angle / c.wet_highlight_deg) ** 2)
+        on = lobe > 1e-3 * c.wet_highlight
+        if not on.any():
+            return None
+        rows, cols = np.flatnonzero(on.any(axis=1)), np.flatnonzero(on.any(axis=0))
+        v0, v1, u0, u1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+        return v0, v1, u0, u1, lobe[v0:v1, u0:u1].astype(np.float32)
 
     def _plan_levels(self, v: _View) -> list[_Level]:
         """Pick a pyramid level per pixel from its footprint (texels per pixel) on the wall."""
@@ -250,10 +334,20 @@ class Simulator:
             levels.append(_Level(k, a, b, None if full else w[k, a:b].astype(np.float32)))
         return levels
 
-    def _scaled_maps(self, v: _View):
+    def _levels_for(self, tilt: float, view: _View) -> list[_Level]:
+        """The pyramid plan of a moving camera: the first one, unless the tilt moved (a schedule)
+        more than 1.5 deg from it; then one per whole degree, made once."""
+        if abs(tilt - self.tilt_rad) < math.radians(1.5):
+            return self._levels
+        key = round(math.degrees(tilt))
+        if key not in self._plans:
+            self._plans[key] = self._plan_levels(view)
+        return self._plans[key]
+
+    def _scaled_maps(self, v: _View, levels=None):
         """Per level: (R, C) of its row band scaled to level-k texels, and the band's column span."""
         out = []
-        for lv in self._levels:
+        for lv in levels or self._levels:
             s = np.float32(0.5 ** lv.k)
             C = v.C[lv.a:lv.b]
             out.append((v.R[lv.a:lv.b] * s, C * s, float(C.min()), float(C.max())))

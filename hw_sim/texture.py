@@ -1,21 +1,24 @@
-"""Procedural concrete wall texture, generated lazily in tiles and cached.
+"""The wall texture as tiles: generated lazily, cached, with seamless pyramids and exact wrap.
 
-The texture is a pure function of the global texel (row, col) and the seed: lattice value noise
-whose lattice values are an integer hash of (seed, salt, ix, iy). Tiles are just windows onto that
+The texture is a pure function of the global texel (row, col): a WallPattern (hw_sim/patterns.py:
+concrete, masonry, an image) gives its detail and shading, built from lattice value noise whose
+lattice values are an integer hash of (seed, salt, ix, iy). Tiles are just windows onto that
 function, so they join without seams, and columns wrap exactly around the circumference because
-each noise layer has an integer number of cells around it. There is no tiling period along the
-pipe (the hash has none within 2^32 cells).
+every layer has an integer number of cells (courses, image tiles) around it.
 
 Row r is the texel whose centre is at y = (r + 0.5) * mm_per_texel along the pipe; column c the
 one whose centre is at arc s = (c + 0.5) * mm_per_texel_circ from the crown.
 
 Each tile also stores a small Gaussian pyramid (levels 1..3, built from a margin-padded tile so
 the levels have no seams either): the renderer samples the level that matches a pixel's footprint
-on the wall so that oblique views do not alias.
+on the wall so that oblique views do not alias. Stretches (featureless, wet) change the contrast
+and albedo of whole rows.
 """
 from __future__ import annotations
 
+import threading
 from collections import OrderedDict
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -25,21 +28,9 @@ LEVELS = 4          # pyramid levels 0..3: footprints up to ~11 texels per pixel
 MARGIN = 32         # texels generated beyond each tile edge so pyrDown borders are cropped away
 COARSE = 4          # smooth layers are evaluated every COARSE texels and interpolated bilinearly
 WRAP_MULTIPLE = 16  # texels around the pipe are a multiple of this (tiles and pyramid levels align)
+DETAIL_GAIN = 0.19  # texture std as a fraction of the mean albedo (contrast 1)
+STRETCH_RAMP_M = 0.01   # contrast fades over 10 mm at each end of a featureless or wet stretch
 
-# The look of the wall: (cell size in texels, amplitude) per layer. Tuned by eye against photos of
-# cast concrete: fine sand grain, mottling at a few mm to cm, dark air-void pores, pale aggregate
-# specks, sparse larger bugholes, and large faint stains.
-TEXTURE = {
-    "grain": ((2.0, 0.55), (4.0, 0.45), (8.0, 0.40)),              # full resolution
-    "mottle": ((16.0, 0.35), (32.0, 0.30), (64.0, 0.25), (128.0, 0.20)),  # coarse grid
-    "pores": {"cells": (7.0, 3.5), "threshold": 0.76, "soft": 0.05, "depth": -0.55},
-    "voids": {"cells": (26.0, 9.0), "threshold": 0.79, "soft": 0.04, "depth": -0.7},
-    "specks": {"cells": (13.0, 6.5), "threshold": 0.25, "soft": 0.05, "lift": 0.40},
-    "stains": ((700.0, 0.12), (2300.0, 0.12)),                      # multiplicative, coarse grid
-    "detail_mean": -0.012, "detail_std": 0.29,  # normalise the summed layers (measured, seed-independent)
-    "detail_gain": 0.19,                     # texture std as a fraction of the mean albedo
-}
-FEATURELESS_RAMP_M = 0.01   # contrast fades over 10 mm at each end of a featureless stretch
 
 def hash_uniform(seed: int, salt: int, iy: np.ndarray, ix: np.ndarray) -> np.ndarray:
     """Uniform [0, 1) float32 from integers (seed, salt, iy, ix): murmur3's fmix32 of a mix."""
@@ -84,99 +75,108 @@ def value_noise(rows: np.ndarray, cols: np.ndarray, cell: float, n_cols: int, se
     return Gx[jy] * (1 - wy)[:, None] + Gx[jy + 1] * wy[:, None]
 
 
-def _soft_step(x: np.ndarray, edge: float, soft: float) -> np.ndarray:
+def soft_step(x: np.ndarray, edge: float, soft: float) -> np.ndarray:
     t = np.clip((x - edge) / soft, 0.0, 1.0)
     return t * t * (3 - 2 * t)
+
+
+def inside(y: np.ndarray, intervals, ramp: float = STRETCH_RAMP_M) -> np.ndarray:
+    """How far each position y (m) is inside any interval a:b: 1 inside, 0 outside, a smooth
+    `ramp` across each end."""
+    w = np.zeros(np.shape(y), np.float32)
+    for a, b in intervals:
+        w = np.maximum(w, soft_step(y, a - ramp / 2, ramp) * (1 - soft_step(y, b - ramp / 2, ramp)))
+    return w
+
+
+@dataclass(frozen=True)
+class Stretch:
+    """Wall from a to b (m along the pipe) whose texture contrast and albedo are scaled."""
+    a: float
+    b: float
+    contrast: float
+    albedo: float = 1.0
 
 
 class WallTexture:
     """The albedo of the whole wall (mean ~1), as lazily generated, LRU-cached tile pyramids."""
 
     def __init__(self, seed: int, mm_per_texel: float, circumference_m: float, contrast: float = 1.0,
-                 featureless: tuple[tuple[float, float], ...] = (), featureless_contrast: float = 0.02,
-                 cache_tiles: int = 96):
+                 stretches: tuple[Stretch, ...] = (), pattern=None, cache_tiles: int = 96):
+        from .patterns import Concrete
         self.seed = seed
         self.m_per_texel = mm_per_texel / 1000.0
         n = circumference_m / self.m_per_texel
         self.n_cols = max(WRAP_MULTIPLE, WRAP_MULTIPLE * round(n / WRAP_MULTIPLE))
         self.m_per_texel_circ = circumference_m / self.n_cols
         self.contrast = contrast
-        self.featureless = featureless
-        self.featureless_contrast = featureless_contrast
+        self.stretches = tuple(stretches)
+        self.pattern = pattern or Concrete(seed)
         self.cache_tiles = cache_tiles
         self._cache: OrderedDict[tuple[int, int], list[np.ndarray]] = OrderedDict()
         self.tiles_generated = 0
+        self._lock = threading.Lock()     # the fake's camera thread and its consumer share tiles
+        self._pending: dict[tuple[int, int], threading.Event] = {}
 
     # --- the texture function -------------------------------------------------------------------
-    def _contrast_rows(self, rows: np.ndarray) -> np.ndarray:
-        """Per-row contrast factor: 1, dropping to featureless_contrast inside featureless stretches."""
-        c = np.ones(rows.shape, np.float32)
-        if not self.featureless:
-            return c
+    def _rows_factors(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-row (contrast, albedo) factors: 1 and 1, changed inside the stretches."""
+        c, a = np.ones(rows.shape, np.float32), np.ones(rows.shape, np.float32)
         y = (rows + 0.5) * self.m_per_texel
-        ramp = FEATURELESS_RAMP_M
-        for a, b in self.featureless:
-            inside = _soft_step(y, a - ramp / 2, ramp) * (1 - _soft_step(y, b - ramp / 2, ramp))
-            c *= (1 - (1 - self.featureless_contrast) * inside).astype(np.float32)
-        return c
-
-    def _coarse(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Smooth layers (mottle, stains) on the COARSE grid, upsampled bilinearly to rows x cols.
-
-        Samples sit at global texel coordinates r0 + COARSE*j + (COARSE-1)/2, which is where
-        cv2.resize(INTER_LINEAR) puts source pixel centres, so every tile interpolates the same
-        global samples and the result is seamless (rows/cols start on a multiple of COARSE).
-        """
-        s = self.seed
-        half = (COARSE - 1) / 2
-        cr = rows[0] + COARSE * np.arange(len(rows) // COARSE) + half
-        cc = cols[0] + COARSE * np.arange(len(cols) // COARSE) + half
-        mottle = sum(a * (value_noise(cr, cc, L, self.n_cols, s, 10 + i) - 0.5)
-                     for i, (L, a) in enumerate(TEXTURE["mottle"]))
-        stain = 1 + sum(a * 2 * (value_noise(cr, cc, L, self.n_cols, s, 20 + i) - 0.5)
-                        for i, (L, a) in enumerate(TEXTURE["stains"]))
-        size = (len(cols), len(rows))
-        return (cv2.resize(mottle.astype(np.float32), size, interpolation=cv2.INTER_LINEAR),
-                cv2.resize(stain.astype(np.float32), size, interpolation=cv2.INTER_LINEAR))
+        for s in self.stretches:
+            w = inside(y, [(s.a, s.b)])
+            c *= 1 - (1 - s.contrast) * w
+            a *= 1 - (1 - s.albedo) * w
+        return c, a
 
     def detail(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(detail, stain) on the grid rows x cols: detail ~ zero mean, unit std; stain ~ 1."""
-        s, n = self.seed, self.n_cols
-        rows = rows.astype(np.float64)
-        cols = cols.astype(np.float64)
-        d = sum(a * (value_noise(rows, cols, L, n, s, i) - 0.5)
-                for i, (L, a) in enumerate(TEXTURE["grain"]))
-        mottle, stain = self._coarse(rows, cols)
-        d += mottle
-        for salt, name in ((30, "pores"), (50, "voids")):
-            p = TEXTURE[name]
-            pn = (2 * value_noise(rows, cols, p["cells"][0], n, s, salt)
-                  + value_noise(rows, cols, p["cells"][1], n, s, salt + 1)) / 3
-            d += p["depth"] * _soft_step(pn, p["threshold"], p["soft"])
-        k = TEXTURE["specks"]
-        kn = (2 * value_noise(rows, cols, k["cells"][0], n, s, 40)
-              + value_noise(rows, cols, k["cells"][1], n, s, 41)) / 3
-        d += k["lift"] * (1 - _soft_step(kn, k["threshold"], k["soft"]))
-        return (d - TEXTURE["detail_mean"]) / TEXTURE["detail_std"], stain
+        """(detail, shading) on the grid rows x cols: detail ~ zero mean, unit std; shading ~ 1."""
+        return self.pattern.detail(rows.astype(np.float64), cols.astype(np.float64), self)
 
     def albedo(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """Texture values on the grid of integer texel rows x cols (both contiguous runs whose first
         element and length are multiples of COARSE). Float32, mean ~1."""
         d, stain = self.detail(rows, cols)
-        gain = TEXTURE["detail_gain"] * self.contrast * self._contrast_rows(rows)[:, None]
-        return np.clip(stain * (1 + gain * d), 0.02, 3.0).astype(np.float32)
+        c, a = self._rows_factors(rows)
+        gain = DETAIL_GAIN * self.contrast * c[:, None]
+        return np.clip(stain * a[:, None] * (1 + gain * d), 0.02, 3.0).astype(np.float32)
 
     # --- tiles ----------------------------------------------------------------------------------
     def tile_width(self, tx: int) -> int:
         return min(TILE, self.n_cols - tx * TILE)
 
     def tile(self, tx: int, ty: int) -> list[np.ndarray]:
-        """Pyramid [level0 (TILE x w), level1, ...] of tile column tx (0..n_tile_cols-1), row ty."""
+        """Pyramid [level0 (TILE x w), level1, ...] of tile column tx (0..n_tile_cols-1), row ty.
+
+        Thread-safe: a tile is generated outside the lock (tens of ms), once; a second thread that
+        needs the same tile meanwhile waits for it, others go on with cached ones."""
         key = (tx, ty)
-        lv = self._cache.get(key)
-        if lv is not None:
-            self._cache.move_to_end(key)
+        with self._lock:
+            lv = self._cache.get(key)
+            if lv is not None:
+                self._cache.move_to_end(key)
+                return lv
+            pending = self._pending.get(key)
+            mine = pending is None
+            if mine:
+                pending = self._pending[key] = threading.Event()
+        if not mine:
+            pending.wait()
+            return self.tile(tx, ty)
+        try:
+            lv = self._make_tile(tx, ty)
+            with self._lock:
+                self._cache[key] = lv
+                self.tiles_generated += 1
+                while len(self._cache) > self.cache_tiles:
+                    self._cache.popitem(last=False)
             return lv
+        finally:
+            with self._lock:
+                del self._pending[key]
+            pending.set()
+
+    def _make_tile(self, tx: int, ty: int) -> list[np.ndarray]:
         w = self.tile_width(tx)
         rows = np.arange(ty * TILE - MARGIN, (ty + 1) * TILE + MARGIN)
         cols = np.arange(tx * TILE - MARGIN, tx * TILE + w + MARGIN)
@@ -186,10 +186,6 @@ class WallTexture:
             p = cv2.pyrDown(p)
             m = MARGIN >> k
             lv.append(np.ascontiguousarray(p[m:-m, m:-m]))
-        self._cache[key] = lv
-        self.tiles_generated += 1
-        while len(self._cache) > self.cache_tiles:
-            self._cache.popitem(last=False)
         return lv
 
     def region(self, level: int, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
@@ -213,3 +209,24 @@ class WallTexture:
                 c += ncols
             r += nr
         return out
+
+    def ensure(self, level: int, r0: int, r1: int, c0: int, c1: int, budget: int = 1 << 30) -> int:
+        """Generate (and cache) the tiles region(level, r0, r1, c0, c1) would read, at most
+        `budget` new ones; returns how many it made."""
+        T, nc = TILE >> level, self.n_cols >> level
+        cols, c = set(), c0
+        while c < c1 and len(cols) * T < nc + T:
+            tx, ci = divmod(c % nc, T)
+            cols.add(tx)
+            c += (self.tile_width(tx) >> level) - ci
+        made = 0
+        for ty in range(r0 // T, (r1 - 1) // T + 1):
+            for tx in sorted(cols):
+                if made >= budget:
+                    return made
+                with self._lock:
+                    cached = (tx, ty) in self._cache
+                if not cached:
+                    self.tile(tx, ty)
+                    made += 1
+        return made

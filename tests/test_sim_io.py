@@ -27,7 +27,8 @@ def test_write_run_files_agree(run_with_drops):
     assert set(paths) == {"h264", "pts", "csv", "json"} and all(p.exists() for p in paths.values())
     assert paths["pts"].read_text().splitlines()[:2] == ["# timecode format v2", "0.000"]
     gt, pts = read_ground_truth(paths["csv"]), read_pts(paths["pts"])
-    assert paths["csv"].read_text().splitlines()[0] == "frame,t_s,distance_m,speed_m_s"
+    assert paths["csv"].read_text().splitlines()[0] == ("frame,t_s,distance_m,speed_m_s,tilt_deg,camera_height_m,"
+                                                        "led_light,wet,lost_before")
     np.testing.assert_array_equal(gt["frame"], np.arange(len(gt)))
     np.testing.assert_allclose(gt["t_s"], pts, atol=1.5e-6)
     np.testing.assert_allclose(gt["distance_m"], 0.3 * gt["t_s"], atol=1e-8)

@@ -1,0 +1,139 @@
+"""Stress suite for "never lose distance": hw_sim runs with one hard disturbance each, replayed by crawlerd.
+
+    python benchmarks/stress.py [--out DIR] [--jobs N] [--cases a,b] [--markdown] [--set SECTION.KEY=VALUE]
+
+Each case renders once (cached in --out; the .csv keeps the true tilt, camera height, LED light, wet
+share and lost frames per frame) and is replayed with crawlerd's Daemon as `crawlerd --replay` would
+(the .pts beside the video gives the frame times, so dropped frames leave real gaps). Prints per case
+the true distance, the measured one, the error in percent of the path length, and the frames the
+odometry lost. Not a test: it prints figures (docs/accuracy.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+SHAKE = dict(bounce_mm=1.0, pitch_jitter_deg=0.3, roll_deg=2.0, sway_mm=1.5)
+LIT = dict(lighting=True, vignetting=True, noise_sigma=1.5)
+
+
+def photo() -> dict:
+    """A photographic wall (scikit-image's gravel) if scikit-image is installed, else masonry."""
+    if importlib.util.find_spec("skimage") is not None:
+        return dict(texture="image", texture_image="skimage:gravel", image_mm_per_px=0.4)
+    print("stress: scikit-image missing (pip install -e '.[textures]'): the photo case uses masonry",
+          file=sys.stderr)
+    return dict(texture="masonry")
+
+
+# name: (SimConfig fields, extra crawlerd --set overrides). Tilt is also the crawler's mount tilt.
+CASES = {
+    "wet-highlight-0deg-0.3": (dict(tilt_deg=0, speed_m_s=0.3, duration_s=12, seed=21,
+                                    wet_patches=((0.8, 1.6), (2.4, 2.7)), **LIT), []),
+    "blackout-24deg-0.4": (dict(tilt_deg=24, speed_m_s=0.4, duration_s=12, seed=22, exposure_ms=2.0,
+                                led_blackouts=((3.0, 3.6), (7.0, 7.15)), **LIT), []),
+    "drop-burst-40deg-0.1": (dict(tilt_deg=40, speed_m_s=0.1, duration_s=15, seed=23,
+                                  dropped_bursts=((4.0, 4.8), (9.0, 9.3))), []),
+    "crf35-masonry-shake-24deg-0.5": (dict(tilt_deg=24, speed_m_s=0.5, duration_s=10, seed=24, texture="masonry",
+                                           crf=35, **SHAKE), []),
+    "crf40-masonry-shake-24deg-0.5": (dict(tilt_deg=24, speed_m_s=0.5, duration_s=10, seed=24, texture="masonry",
+                                           crf=40, **SHAKE), []),
+    "reverse-stop-and-back-40deg-0.8": (dict(tilt_deg=40, profile="reverse", speed_m_s=0.8, accel_m_s2=1.0,
+                                             duration_s=12, fps=60, seed=25), []),
+    "photo-wall-0deg-0.2": (dict(tilt_deg=0, speed_m_s=0.2, duration_s=12, seed=26, **photo()), []),
+    "tilt-sweep-sediment-24deg-0.3": (dict(tilt_schedule=((0, 24), (4, 24), (4.05, 28), (10, 20)), speed_m_s=0.3,
+                                           duration_s=12, seed=27,
+                                           height_profile=((1.0, 0), (1.3, 15), (2.2, 15), (2.5, 0))), []),
+    "all-at-once-24deg-0.4": (dict(tilt_schedule=((0, 24), (6, 24), (6.05, 27), (14, 22)), profile="stopgo",
+                                   speed_m_s=0.4, stopgo_period_s=4.0, stopgo_dwell_s=0.8, duration_s=16, seed=28,
+                                   texture="masonry", crf=38, wet_patches=((0.9, 1.5),),
+                                   led_blackouts=((5.0, 5.5),), dropped_bursts=((9.0, 9.5),),
+                                   height_profile=((2.0, 0), (2.3, 12), (3.0, 12), (3.3, 0)), exposure_ms=2.0,
+                                   **SHAKE, **LIT), []),
+}
+
+
+def render(out: Path, name: str, fields: dict) -> Path:
+    from hw_sim import SimConfig, write_run
+
+    json_path = out / f"{name}.json"
+    cfg = SimConfig(**fields)
+    if json_path.exists() and json.loads(json_path.read_text())["config"] == json.loads(
+            json.dumps(cfg.to_dict())):
+        return json_path
+    write_run(cfg, out, name)
+    return json_path
+
+
+def replay(h264: Path, overrides: list[str]) -> dict:
+    from crawler import config
+    from crawler.daemon import Daemon
+    from crawler.leds import NoLeds
+    from crawler.video import VideoReplay
+
+    cfg = config.load(None, overrides)
+    with VideoReplay(h264) as src:
+        daemon = Daemon(cfg, src, mode="replay", leds=NoLeds())
+        daemon.run()
+    return daemon.summary()
+
+
+def measure(args) -> dict:
+    out, name, common = args
+    fields, extra = CASES[name]
+    t0 = time.perf_counter()
+    meta = json.loads(render(out, name, fields).read_text())
+    t1 = time.perf_counter()
+    tilt = meta["tilt_deg"]                   # the tilt at t = 0: what the crawler is mounted with
+    s = replay(out / f"{name}.h264", [f"mount.tilt_deg={tilt}", *extra, *common])
+    return {"case": name, "tilt": tilt, "speed": fields["speed_m_s"], "frames": meta["frames"],
+            "sensor_frames": meta["sensor_frames"], "true_m": meta["true_distance_m"],
+            "path_m": meta["path_length_m"], "measured_m": s["distance_m"],
+            "err_pct": 100 * (s["distance_m"] - meta["true_distance_m"]) / meta["path_length_m"],
+            "lost": s["lost_frames"], "render_s": t1 - t0, "replay_s": time.perf_counter() - t1}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=str(ROOT / "out" / "stress"), help="where rendered runs are cached")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--markdown", action="store_true", help="print a Markdown table")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="config override for every case, e.g. odometry.method=plane")
+    ap.add_argument("--cases", help="comma-separated subset of the cases")
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    names = args.cases.split(",") if args.cases else list(CASES)
+    t0 = time.time()
+    rows = []
+    with ProcessPoolExecutor(args.jobs) as pool:
+        for row in pool.map(measure, [(out, n, args.set) for n in names]):
+            rows.append(row)
+            print(f"[{time.time() - t0:6.0f} s] {row['case']:34s} {row['err_pct']:+8.3f} %  lost {row['lost']}",
+                  file=sys.stderr)
+    head = ["case", "tilt", "m/s", "frames", "true m", "measured m", "error % of path", "lost frames"]
+    fmt, sep = ("| {} |", " | ") if args.markdown else ("{}", "  ")
+    print(fmt.format(sep.join(head)))
+    if args.markdown:
+        print("|" + "---|" * len(head))
+    for r in rows:
+        print(fmt.format(sep.join([r["case"], f"{r['tilt']:g}", f"{r['speed']:g}",
+                                   f"{r['frames']}/{r['sensor_frames']}", f"{r['true_m']:.4f}",
+                                   f"{r['measured_m']:.4f}", f"{r['err_pct']:+.3f}", str(r["lost"])])))
+    errs = [abs(r["err_pct"]) for r in rows]
+    print(f"mean |error| {sum(errs) / len(errs):.3f} %   max {max(errs):.3f} %")
+    (out / "results.json").write_text(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()
