@@ -97,7 +97,8 @@ def test_distance_on_the_topic_matches_the_simulator(tmp_path, zenoh_pair, opera
     true = last["sim_true_distance_m"]
     assert true > 0.5
     assert last["distance_m"] == pytest.approx(true, rel=0.01)
-    assert dist[-1]["distance_m"] == pytest.approx(true, rel=0.01)
+    # the last published estimate may be a frame or two (at 30 Hz, 0.3 m/s) older than the final status
+    assert dist[-1]["distance_m"] == pytest.approx(true, rel=0.01, abs=0.02)
     assert [d["seq"] for d in dist] == sorted(d["seq"] for d in dist)
     assert {"t_s", "distance_m", "speed_m_s", "quality", "tracking", "seq"} <= set(dist[-1])
     assert last["source"] == "sim" and last["camera"]["sensor_mode"] == [640, 480]
