@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import re
+import time
 from dataclasses import dataclass, replace
 
 from .calibration import load_calibration
@@ -233,7 +234,13 @@ class Picamera2Source:
         self.model = None
         self.cam = None
         self.first_sensor_ns = self.last_sensor_ns = None
+        self.origin_ns = None               # sensor time of frame 0's t_s = 0
+        self.sensor_clock_ns = time.monotonic_ns    # SensorTimestamp's clock (V4L2: CLOCK_MONOTONIC)
         self.warnings: list[str] = []
+
+    def clock_s(self) -> float:
+        """Now, on the frames' time base (t_s): for other sensors read beside the camera (the wheel)."""
+        return 0.0 if self.origin_ns is None else (self.sensor_clock_ns() - self.origin_ns) / 1e9
 
     @property
     def camera(self) -> Camera:
@@ -368,7 +375,7 @@ class Picamera2Source:
                 # top row's exposure (docs/conventions.md)
                 t_ns = ts + self.plan.top_row_s * 1e9 - md.get("ExposureTime", self.settings.exposure_us) * 500.0
                 if t0 is None:
-                    t0 = t_ns
+                    t0 = self.origin_ns = t_ns
                     self.first_sensor_ns = ts
                 self.last_sensor_ns = ts
                 if self.mapped_array is not None:

@@ -64,6 +64,14 @@ def _intervals(text: str) -> tuple[float, float]:
     return (a, b)
 
 
+def _interval_list(text: str) -> tuple[tuple[float, float], ...]:
+    """'8:9,10:10.5' -> ((8.0, 9.0), (10.0, 10.5))."""
+    try:
+        return tuple(tuple(float(v) for v in part.split(":")) for part in text.split(",") if part)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must be A:B[,A:B] in seconds, e.g. 8:9") from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description="Visual odometry for in-pipe crawlers.",
                                 epilog="Documentation: docs/odometry.md, docs/deploy.md, docs/topics.md")
@@ -97,6 +105,12 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--sim-seed", type=int, default=0, metavar="N", help="wall texture seed")
     sim.add_argument("--sim-featureless", action="append", default=[], type=_intervals, metavar="A:B",
                      help="a smooth, wet stretch of wall from A to B metres (repeatable)")
+    sim.add_argument("--sim-wheel", action="store_true",
+                     help="a simulated wheel encoder, read through the kernel rotary-encoder backend")
+    sim.add_argument("--sim-slip", type=_interval_list, default=(), metavar="A:B[,A:B]",
+                     help="seconds in which the wheel turns 20 %% faster than the ground moves")
+    sim.add_argument("--sim-wheel-scale", type=float, default=1.0, metavar="X",
+                     help="true over nominal counts per metre of the simulated wheel (1.0)")
     net = add_zenoh_flags(p)
     net.add_argument("--no-publish", action="store_true", help="measure without opening a Zenoh session")
     out = p.add_argument_group("output")
@@ -130,7 +144,8 @@ def run_options(args):
 
     mode = Mode.REPLAY if args.replay else Mode.SIM if args.sim else Mode.CAMERA
     sim = SimOptions(speed_m_s=args.sim_speed, tilt_deg=args.sim_tilt, profile=args.sim_profile,
-                     sensor=args.sim_sensor, seed=args.sim_seed, featureless=tuple(args.sim_featureless))
+                     sensor=args.sim_sensor, seed=args.sim_seed, featureless=tuple(args.sim_featureless),
+                     wheel=args.sim_wheel, slip=args.sim_slip, wheel_scale=args.sim_wheel_scale)
     publish = False if args.no_publish else (True if args.publish else None)
     return RunOptions(mode=mode, video=args.replay, pts=args.pts, fps=args.fps, realtime=args.realtime,
                       publish=publish, log=args.log, annotate=args.annotate, max_frames=args.max_frames,

@@ -14,7 +14,10 @@ import time
 import uuid
 
 from .errors import CrawlerError
+from .distance import DistanceChain
+from .gaps import GapBridge
 from .inspection import Inspection
+from .wheel.port import NoWheel
 from .leds import NoLeds
 from .commands import CommandQueue, CommandRefused, number
 from .odometry import Odometer
@@ -49,8 +52,8 @@ class Daemon:
 
     def __init__(self, source, odometer: Odometer, *, name: str, leds=None, outputs=(),
                  commands: CommandQueue | None = None, resume: dict | None = None,
-                 inspection: Inspection | None = None, clock=time.monotonic, stop=lambda: False,
-                 max_frames: int | None = None):
+                 inspection: Inspection | None = None, chain: DistanceChain | None = None, wheel=None,
+                 clock=time.monotonic, stop=lambda: False, max_frames: int | None = None):
         self.source = source
         self.odometer = odometer
         self.name = name
@@ -63,6 +66,9 @@ class Daemon:
         self.run_id = resume["run_id"] if resume else new_run_id()
         self._resume_m = resume["distance_m"] if resume else 0.0
         self.inspection = _resumed_inspection(resume, inspection or Inspection())
+        self.chain = chain or DistanceChain(GapBridge(distance_m=self._resume_m))
+        self.wheel = wheel or NoWheel()
+        self._published_m = self._resume_m     # the distance the last frame published
         self._last_t = 0.0
         self.stats = RunStats()
         self.started = 0.0
@@ -74,11 +80,11 @@ class Daemon:
 
     @property
     def distance_m(self) -> float:
-        return self.odometer.distance
+        return self._published_m
 
     def state(self) -> dict:
         return {"distance_m": round(self.distance_m, 6), "frames": self.stats.frames, "run_id": self.run_id,
-                "inspection": self.inspection.to_dict()}
+                "inspection": self.inspection.to_dict(), **self.chain.state()}
 
     def describe(self, estimate) -> dict:
         """An estimate as the outputs publish it: with the crawler, the run and the footage counter."""
@@ -100,6 +106,9 @@ class Daemon:
             "run_id": self.run_id,
             "loop_ms": self.stats.loop.as_dict(),
             "observations": len(self.inspection.observations),
+            "sigma_m": None if est is None or est.sigma_m is None else round(est.sigma_m, 6),
+            "bridged": bool(est and est.bridged), "distance_source": est.source if est else None,
+            "slip": bool(est and est.slip), "slips": self._slips(), "wheel": self.wheel.description,
             **self.inspection.fields(self.distance_m),
         }
         info = self.source.info()
@@ -119,6 +128,8 @@ class Daemon:
                 self.odometer.set_distance(0.0)
             else:                              # whatever state it is in, a reset starts clean
                 self.odometer.reset(distance=0.0)
+            self.chain.set_distance(0.0, vision_m=0.0)
+            self._published_m = 0.0
             self.run_id = new_run_id()
             self.inspection.new_run()
             for output in self.outputs:
@@ -174,8 +185,17 @@ class Daemon:
 
     def _step(self, frame):
         t0 = time.perf_counter()
-        est = self.odometer.update(frame.gray, frame.t_s)
+        est = self.chain.update(self.odometer.update(frame.gray, frame.t_s), self.wheel.read())
+        self._published_m = est.distance_m
         self._last_t = frame.t_s
+        if self.chain.fusion is not None:
+            for note in self.chain.fusion.pop_notes():
+                _log.warning("wheel: %s", note)
+        if self.chain.last_event is not None:
+            event, self.chain.last_event = self.chain.last_event, None
+            _log.warning("wheel slip: %s", event.as_dict())
+            for output in self.outputs:
+                output.note("events", {"event": "slip", **event.as_dict()})
         self._last_est = est
         self.stats.add(est)
         self._frame_times.append(self.clock())
@@ -193,6 +213,10 @@ class Daemon:
                 output.stop(self)
             except Exception:
                 _log.exception("%s failed to stop", type(output).__name__)
+
+    def _slips(self) -> list:
+        f = self.chain.fusion
+        return [] if f is None else [e.as_dict() for e in f.events]
 
     def summary(self) -> dict:
         """The closing JSON line."""

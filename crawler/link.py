@@ -101,7 +101,7 @@ class ZenohLink:
         try:
             json_enc = zenoh.Encoding.APPLICATION_JSON
             pubs = {k: session.declare_publisher(f"{self.prefix}/{k}", encoding=json_enc)
-                    for k in ("distance", "speed", "status", "observations")}
+                    for k in ("distance", "speed", "status", "observations", "events")}
             queryables = [session.declare_queryable(f"{self.prefix}/status"),
                           session.declare_queryable(f"{self.prefix}/cmd/*")]
             decls = [session.liveliness().declare_token(f"{self.prefix}/alive"), *queryables]

@@ -55,13 +55,23 @@ class Estimate:
     inliers: int
     spread_mm: float | None
     keyframe: bool
+    continuous: bool = True           # False: a fresh start, the motion since the last tracked frame unknown
+    # filled in after the odometer (crawler/distance.py): the published distance's uncertainty and origin
+    sigma_m: float | None = None
+    bridged: bool = False
+    source: str = "vision"
+    slip: bool = False
+    wheel_distance_m: float | None = None
+    wheel_scale: float | None = None
+    gap_s: float = 0.0
 
     def as_dict(self) -> dict:
         d = dict(self.__dict__)
         for k in ("distance_m", "lateral_m"):
             d[k] = round(d[k], 6)
-        for k in ("speed_m_s", "roll_deg", "spread_mm"):
+        for k in ("speed_m_s", "roll_deg", "spread_mm", "sigma_m", "wheel_distance_m", "wheel_scale"):
             d[k] = None if d[k] is None or not math.isfinite(d[k]) else round(d[k], 6)
+        d["gap_s"] = round(d["gap_s"], 4)
         d["t_s"] = round(d["t_s"], 6)
         d["quality"] = round(d["quality"], 3)
         return d
@@ -201,6 +211,7 @@ class Odometer:
         self._spreads: deque[float] = deque(maxlen=15)
         self._sigmas: deque[float] = deque(maxlen=15)
         self._refusals = 0
+        self._blind_restart = False
 
     def set_distance(self, distance: float = 0.0):
         """Count from `distance` now, without losing track (an operator's reset mid-run)."""
@@ -291,7 +302,10 @@ class Odometer:
         else:
             self.lost_frames += 1
         n = 0 if self._kf is None else self._kf.n0
-        return self._estimate(t_s, ok, n, n if ok else 0, None, keyframe=ok)
+        est = self._estimate(t_s, ok, n, n if ok else 0, None, keyframe=ok)
+        if ok:                  # after a blind stretch, this start does not know the motion before it
+            est.continuous, self._blind_restart = not self._blind_restart, False
+        return est
 
     def _predict(self, step: float, lat: float) -> np.ndarray:
         """Where the keyframe's features should be after this axial and lateral step (ROI px)."""
@@ -397,6 +411,7 @@ class Odometer:
         renew = (stay < max(p.min_tracks * 2, p.renew_share * kf.n0)
                  or abs(step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, n_in, sigma, keyframe=False)
+        est.continuous, self._blind_restart = not self._blind_restart, False
         if renew:
             est.keyframe = self._new_keyframe(self._good_roi, t_s, owned=True)
         return est
@@ -410,6 +425,7 @@ class Odometer:
             renewed = self._new_keyframe(img, t_s)
             self._velocity = 0.0
             self._speed.reset()
+            self._blind_restart = True        # the motion from the last tracked frame to here is unknown
         return self._estimate(t_s, False, n_tracked, 0, None, keyframe=renewed)
 
     def _estimate(self, t_s, tracking, n_tracked, n_in, sigma, keyframe) -> Estimate:

@@ -20,6 +20,8 @@ from pathlib import Path
 
 from .checkpoint import Checkpoint, CheckpointOutput
 from .daemon import Daemon
+from .distance import DistanceChain
+from .gaps import GapBridge
 from .errors import CameraUnavailable
 from .errors import BadConfig
 from .inspection import Inspection
@@ -30,7 +32,7 @@ from .measurement import build_odometer, describe, recording_camera, thesis_roi
 from .outputs import Annotator, JsonlLog, Progress
 from .sdnotify import Notifier, WatchdogOutput
 from .settings import Settings
-from .sim import SimOptions, SimSource, make_world
+from .sim import SIM_COUNTS_PER_M, SimClock, SimOptions, SimSource, make_world
 from .stats import RunStats
 from .zenoh_config import check_zenoh_config, command_access
 
@@ -113,28 +115,63 @@ class Service:
             self.daemon.stats.error = self.daemon.stats.error or str(err)
 
     def _build(self, stack: ExitStack):
-        self.settings = s = pwm_aligned(self.settings, self.mode)
-        self.source = self._open_source()
+        self.settings = s = pwm_aligned(sim_wheel(self.settings, self.options), self.mode)
+        self.store = None if self.mode is Mode.REPLAY else Checkpoint(s.state.directory)
+        resume = self.store.load() if self.store else None
+        self.source = self._open_source(resume)
         stack.push(self.source)         # entered already (so a camera can fall back): register its exit
         self.odometer = build_odometer(s, self.source.camera, self.source.default_roi)
         self.leds = stack.enter_context(self._leds())
-        self.store = None if self.mode is Mode.REPLAY else Checkpoint(s.state.directory)
+        self.wheel = stack.enter_context(self._wheel())
         outputs = [stack.enter_context(out) for out in self._outputs()]
         fresh = Inspection(unit=s.inspection.unit, direction=s.inspection.direction)
         self.daemon = Daemon(self.source, self.odometer, name=s.name, leds=self.leds, outputs=outputs,
-                             commands=self.commands, resume=self.store.load() if self.store else None,
-                             inspection=fresh,
+                             commands=self.commands, resume=resume, inspection=fresh,
+                             chain=self._chain(resume), wheel=self.wheel,
                              clock=self.hw.clock, stop=self.stop, max_frames=self.options.max_frames)
 
-    def _open_source(self):
+    def _chain(self, resume: dict | None) -> DistanceChain:
+        """Bridging and, with a wheel, the fusion; resumed from the checkpoint's sigma and wheel state."""
+        resume = resume or {}
+        bridge = GapBridge(distance_m=resume.get("distance_m", 0.0), sigma_m=resume.get("sigma_m") or 0.0)
+        w = self.settings.wheel
+        if not w.enabled:
+            return DistanceChain(bridge)
+        from .wheel import WheelFusion
+
+        fusion = WheelFusion(w.fusion_params(), distance_m=resume.get("distance_m", 0.0))
+        if resume.get("wheel"):
+            try:
+                fusion = WheelFusion.from_dict(resume["wheel"], w.fusion_params())
+            except ValueError as exc:
+                _log.error("the checkpoint's wheel state is unreadable (%s); the wheel starts afresh", exc)
+        return DistanceChain(bridge, fusion)
+
+    def _wheel(self):
+        from .wheel import open_wheel
+
+        w = self.settings.wheel
+        if not w.enabled:
+            return open_wheel(w)
+        hardware = {"pin_factory": self.hw.pin_factory} if w.backend == "gpiozero" else {}
+        if isinstance(self.source, SimSource) and self.options.sim.wheel:
+            device = self.source.encoder_device(self.options.sim)
+            hardware = {"opener": lambda name: device, "boot_id": lambda: f"sim-{self.source.world.start_ns}"}
+        return open_wheel(w, clock=self.source.clock_s, **hardware)
+
+    def _open_source(self, resume):
         """The frame source, entered; a camera that cannot open falls back to [camera] fallback_video."""
         o, c = self.options, self.settings.camera
         if self.mode is Mode.REPLAY:
             return _entered(self._replay(o.video, o.pts, o.fps, o.realtime))
         if self.mode is Mode.SIM:
-            world = self.hw.world or make_world(self.settings, o.sim)
-            self.hw.world = world
-            return _entered(SimSource(self.settings, world))
+            clock = None
+            if self.hw.world is None:           # the world goes on from its epoch while we are down
+                clock = SimClock(self.settings.state.directory, time.monotonic_ns())
+                if resume is None:
+                    clock.origin_ns = None      # a new run: the truth counts from its first frame
+                self.hw.world = make_world(self.settings, o.sim, start_ns=clock.epoch_ns)
+            return _entered(SimSource(self.settings, self.hw.world, clock))
         from .camera import Picamera2Source
 
         try:
@@ -246,6 +283,17 @@ def pwm_aligned(settings: Settings, mode: Mode) -> Settings:
         _log.warning("[camera] exposure_us = %d is not a whole number of %g Hz PWM periods (the LEDs "
                      "would band the frames); using %d us", cam.exposure_us, led.frequency_hz, exposure)
     return replace(settings, camera=replace(cam, exposure_us=exposure))
+
+
+def sim_wheel(settings: Settings, options: RunOptions) -> Settings:
+    """--sim-wheel: the simulated encoder read through the kernel backend, as on the crawler."""
+    if options.mode is not Mode.SIM or not options.sim.wheel or settings.wheel.enabled:
+        return settings
+    from .settings import _wheel_settings
+
+    wheel = _wheel_settings({"backend": "evdev", "device": "sim-rotary", "counts_per_m": SIM_COUNTS_PER_M},
+                            settings.name)
+    return replace(settings, wheel=wheel)
 
 
 def sim_settings(settings: Settings, options: RunOptions, state_dir_given: bool) -> Settings:

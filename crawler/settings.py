@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -256,6 +256,7 @@ class Settings:
     state: StateSettings = field(default_factory=StateSettings)
     inspection: InspectionSettings = field(default_factory=InspectionSettings)
     ros2: Ros2Settings = field(default_factory=Ros2Settings)
+    wheel: "WheelSettings" = field(default_factory=lambda: _wheel_settings({}, "crawler1"))
 
     def __post_init__(self):
         _check_field(self, "", "name", self.name, "str")
@@ -265,8 +266,11 @@ class Settings:
         """A parsed TOML mapping -> Settings; unknown or renamed keys and wrong types are refused."""
         top = {}
         sections = {}
+        name = data.get("name", "crawler1") if isinstance(data.get("name"), str) else "crawler1"
         for key, value in data.items():
-            if key in SECTIONS and isinstance(value, dict):
+            if key == "wheel":
+                sections["wheel"] = _wheel_settings(value, name)
+            elif key in SECTIONS and isinstance(value, dict):
                 sections[key] = SECTIONS[key](**_section_values(SECTIONS[key], key, value, origin))
             elif key == "name":
                 top["name"] = _coerce("", key, value, "str")
@@ -276,22 +280,38 @@ class Settings:
         return cls(**top, **sections)
 
     def with_values(self, values: dict[str, Any], origin: str = "the command line") -> "Settings":
-        """These settings with `{"section.key": value}` replaced (a key without a section is top-level)."""
+        """These settings with `{"section.key": value}` replaced (a key without a section is top-level).
+
+        The keys of one section are applied together, so checks across keys see them all.
+        """
         out = self
+        grouped: dict[str, dict] = {}
         for dotted, value in values.items():
             section, _, key = dotted.rpartition(".")
             if not section:
                 if key != "name":
                     raise BadConfig(f"{origin}: unknown key {key!r}; keys outside a section: name")
                 out = replace(out, name=_coerce("", key, value, "str"))
-                continue
-            if section not in SECTIONS:
+            elif section not in SECTIONS and section != "wheel":
                 raise BadConfig(f"{origin}: unknown section [{section}]; known sections: "
-                                f"{', '.join('[' + s + ']' for s in SECTIONS)}")
-            cls = SECTIONS[section]
-            new = _section_values(cls, section, {key: value}, origin)
-            out = replace(out, **{section: replace(getattr(out, section), **new)})
+                                f"{', '.join('[' + s + ']' for s in SECTIONS)}, [wheel]")
+            else:
+                grouped.setdefault(section, {})[key] = value
+        for section, new in grouped.items():
+            if section == "wheel":
+                current = {k: v for k, v in asdict(out.wheel).items() if v is not None}
+                out = replace(out, wheel=_wheel_settings(dict(current, **new), out.name))
+            else:
+                new = _section_values(SECTIONS[section], section, new, origin)
+                out = replace(out, **{section: replace(getattr(out, section), **new)})
         return out
+
+
+def _wheel_settings(data, name: str):
+    """[wheel]: its own frozen dataclass, validated by its own from_dict (crawler/wheel/settings.py)."""
+    from .wheel.settings import WheelSettings
+
+    return WheelSettings.from_dict(data, name=name)
 
 
 def load(path: str | Path | None = None, sets: list[str] = (), values: dict[str, Any] | None = None) -> Settings:
@@ -299,8 +319,11 @@ def load(path: str | Path | None = None, sets: list[str] = (), values: dict[str,
     settings = Settings()
     if path is not None:
         settings = Settings.from_dict(_read_toml(Path(path)), str(path))
-    for item in sets:
-        settings = settings.with_values(parse_set(item), f"--set {item}")
+    if sets:
+        merged = {}
+        for item in sets:
+            merged.update(parse_set(item))
+        settings = settings.with_values(merged, "--set")
     if values:
         settings = settings.with_values(values)
     return settings

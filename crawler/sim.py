@@ -8,7 +8,9 @@ on an operator reset), in the status and the summary.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 from .camera import Picamera2Source
 from .errors import BadConfig
@@ -29,6 +31,9 @@ class SimOptions:
     sensor: str = "imx219"
     seed: int = 0
     featureless: tuple[tuple[float, float], ...] = ()
+    wheel: bool = False                               # a simulated encoder through the kernel backend
+    slip: tuple[tuple[float, float], ...] = ()        # s: the wheel turns 20 % faster than the ground
+    wheel_scale: float = 1.0                          # true / nominal counts per metre
 
     def __post_init__(self):
         if self.profile not in PROFILES:
@@ -38,6 +43,11 @@ class SimOptions:
         if not all(a < b for a, b in self.featureless):
             raise BadConfig(f"--sim-featureless {list(self.featureless)} must be A:B with A < B in metres, "
                             "e.g. 0.5:0.8")
+        if not all(0 <= a < b for a, b in self.slip):
+            raise BadConfig(f"--sim-slip {list(self.slip)} must be A:B with 0 <= A < B in seconds, e.g. 8:9")
+        if not 0.5 <= self.wheel_scale <= 2.0:
+            raise BadConfig(f"--sim-wheel-scale {self.wheel_scale:g} must be between 0.5 and 2 (true counts per "
+                            "metre over the nominal ones)")
 
 
 def make_world(settings: Settings, options: SimOptions, **kw):
@@ -57,39 +67,89 @@ def make_world(settings: Settings, options: SimOptions, **kw):
         raise BadConfig(f"simulator: {exc}" + (f"; set {flags[field]}" if field in flags else "")) from None
 
 
+SIM_COUNTS_PER_M = 5000.0            # the simulated encoder: edges per metre (x4 decoding)
+
+
+class SimClock:
+    """The simulated world's epoch and the run's origin, kept in the state directory: the crawler
+    goes on moving while a killed daemon is down, and the truth still counts from the run's start."""
+
+    def __init__(self, directory: str | Path, now_ns: int):
+        self.path = Path(directory) / "sim.json"
+        try:
+            data = json.loads(self.path.read_text())
+            epoch, origin = int(data["epoch_ns"]), data.get("origin_ns")
+            if not 0 < epoch <= now_ns:         # another boot (the monotonic clock restarted)
+                raise ValueError
+        except (OSError, ValueError, KeyError, TypeError):
+            epoch, origin = now_ns, None
+        self.epoch_ns, self.origin_ns = epoch, origin
+        self.save()
+
+    def save(self):
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.path.write_text(json.dumps({"epoch_ns": self.epoch_ns, "origin_ns": self.origin_ns}))
+        except OSError:
+            pass                                # the checkpoint output reports the state directory
+
+
 class SimSource(Picamera2Source):
     """The live camera source on a simulated world; `truth` is its ground-truth output."""
 
-    def __init__(self, settings: Settings, world):
+    def __init__(self, settings: Settings, world, clock: SimClock | None = None):
         from hw_sim.picamera2_fake import MappedArray, make_picamera2
 
         super().__init__(settings.camera, make_picamera2(world), mapped_array=MappedArray, kind="sim")
         self.world = world
-        self.truth = SimTruth(self)
+        self.sensor_clock_ns = world.clock
+        self.truth = SimTruth(self, clock)
+
+    def encoder_device(self, options: SimOptions):
+        """The kernel rotary-encoder device of the simulated wheel (hw_sim's fake evdev device),
+        counting from the world's epoch as the driver counts from boot."""
+        from hw_sim.encoder import FakeInputDevice, SimEncoder
+
+        world = self.world
+        encoder = SimEncoder(lambda t: world.motion.distance(t), counts_per_m=SIM_COUNTS_PER_M,
+                             scale=options.wheel_scale, slip=options.slip,
+                             clock=lambda: world.t_s(world.clock()), t_boot=0.0, seed=options.seed)
+        return FakeInputDevice(encoder, absolute=True, name="sim-rotary")
 
 
 class SimTruth(Output):
-    """The simulator's true distance on the same footing as the measured one."""
+    """The simulator's true distance on the same footing as the measured one: from the run's origin
+    (kept across restarts by SimClock), or from the first frame of a resumed run without one."""
 
-    def __init__(self, source: SimSource):
-        self.source = source
+    def __init__(self, source: SimSource, clock: SimClock | None = None):
+        self.source, self.clock = source, clock
         self._base_m = 0.0          # the measured distance when the footing was set
-        self._t0_ns = None          # ...and the sensor time then
+        self._t0_ns = clock.origin_ns if clock else None
 
     def start(self, run):
-        self._base_m, self._t0_ns = run.distance_m, None     # a resumed run starts where it was
+        if self._t0_ns is None:     # no origin kept: a resumed run starts where it was
+            self._base_m = run.distance_m
+
+    def write(self, frame, estimate, run):
+        if self._t0_ns is None:
+            self._t0_ns = self.source.first_sensor_ns
+            if self.clock is not None:
+                self.clock.origin_ns = self._t0_ns
+                self.clock.save()
 
     def reset(self, run):
         self._base_m, self._t0_ns = 0.0, self.source.last_sensor_ns
+        if self.clock is not None:
+            self.clock.origin_ns = self._t0_ns
+            self.clock.save()
 
     @property
     def distance_m(self) -> float | None:
         src = self.source
-        if src.last_sensor_ns is None:
+        if src.last_sensor_ns is None or self._t0_ns is None:
             return None
-        t0 = self._t0_ns if self._t0_ns is not None else src.first_sensor_ns
         world = src.world
-        return self._base_m + world.true_distance_m(src.last_sensor_ns) - world.true_distance_m(t0)
+        return self._base_m + world.true_distance_m(src.last_sensor_ns) - world.true_distance_m(self._t0_ns)
 
     def report(self, status):
         if self.distance_m is not None:

@@ -156,11 +156,14 @@ def test_truncated_stream_reports_distance_up_to_the_break(render_run, crawlerd,
     rc, s, err = crawlerd("--replay", cut, "--pts", run["pts"], "--log", log)
     assert 10 < s["frames"] < run["truth"]["frames"]
     truth = read_ground_truth(run["csv"])
-    # the last, half-decoded frame may be refused as corrupt; the distance is that of the last good one
-    last = [json.loads(line) for line in log.read_text().splitlines() if json.loads(line)["tracking"]][-1]
+    # the last, half-decoded frame may be refused as corrupt: measured up to the last good one, the
+    # rest bridged by the motion model, and said so
+    rows = [json.loads(line) for line in log.read_text().splitlines()]
+    last = [r for r in rows if r["tracking"]][-1]
     assert last["frame"] >= s["frames"] - 2
-    assert s["distance_m"] == last["distance_m"]
-    assert s["distance_m"] == pytest.approx(truth["distance_m"][last["frame"]], abs=2e-4)
+    assert last["distance_m"] == pytest.approx(truth["distance_m"][last["frame"]], abs=2e-4)
+    assert all(r["bridged"] for r in rows[last["frame"] + 1:])
+    assert s["distance_m"] == pytest.approx(truth["distance_m"][s["frames"] - 1], abs=1e-3)
     assert "warning" in err and "extra timestamps" in err
 
 

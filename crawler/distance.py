@@ -1,0 +1,55 @@
+"""From the odometer's estimate to the distance a frame publishes: bridged gaps, then the wheel.
+
+    odometer -> GapBridge (gaps.py: the motion model, sigma) -> WheelFusion (crawler/wheel: slip,
+    the wheel through blind stretches) -> the published estimate
+
+Without a wheel the fusion is skipped: `source` is `vision` while the camera measures and `model`
+while the bridge carries the distance. With one, the fusion decides (`vision`, `fused`, `wheel`,
+`model`) and flags slip. Pure: the wheel reading is handed in.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+from .gaps import GapBridge
+from .wheel.fusion import VisionFix
+
+
+class DistanceChain:
+    """Per frame: the odometer's estimate (and the wheel's reading) in, the published estimate out."""
+
+    def __init__(self, bridge: GapBridge | None = None, fusion=None):
+        self.bridge = bridge or GapBridge()
+        self.fusion = fusion            # crawler.wheel.WheelFusion, or None without a wheel
+        self.last_event = None          # the latest slip event, for the status
+
+    def update(self, est, wheel_reading=None):
+        b = self.bridge.update(est)
+        out = replace(est, distance_m=b.distance_m, sigma_m=b.sigma_m, bridged=b.bridged,
+                      source="model" if b.bridged else "vision", gap_s=b.gap_s)
+        if self.fusion is None:
+            return out
+        # the fusion weighs each frame's own noise; what carries on (closed keyframe steps) is the bridge's
+        fused = self.fusion.update(VisionFix(est.t_s, b.distance_m, b.step_sigma_m, est.tracking, b.bridged),
+                                   wheel_reading)
+        if fused.event is not None:
+            self.last_event = fused.event
+        return replace(out, distance_m=fused.distance_m, sigma_m=math.hypot(self.bridge.sigma_meas_m, fused.sigma_m),
+                       source=fused.source, slip=fused.slip, wheel_distance_m=fused.wheel_distance_m,
+                       wheel_scale=fused.wheel_scale)
+
+    def set_distance(self, distance_m: float, vision_m: float):
+        """The operator's reset: the published distance is distance_m, the odometer's vision_m."""
+        self.bridge.reset(distance_m)
+        self.bridge.offset_m = distance_m - vision_m
+        if self.fusion is not None:
+            self.fusion.set_distance(distance_m, vision_m=vision_m)
+
+    def state(self) -> dict:
+        out = {"sigma_m": self.bridge.sigma_m}
+        if self.fusion is not None:
+            out["wheel"] = self.fusion.to_dict()
+        return out
+
