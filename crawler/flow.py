@@ -21,7 +21,9 @@ class FlowParams:
     max_features: int = 30          # Shi–Tomasi corners per keyframe (docs/performance.md)
     quality_level: float = 0.01     # corner strength relative to the strongest one
     min_distance_px: int = 8        # spread features over the ROI
-    block_size: int = 7
+    block_size: int = 7             # corner measure window at full resolution
+    detect_scale: int = 2           # corners are looked for on the ROI shrunk this many times
+    detect_block: int = 5           # ...with this window there (0: block_size scaled, odd)
     win_px: int = 9                 # LK window (odd)
     search_px: int = 3              # how far LK may move from the guess on its patch (the guess is good)
     levels: int = 1                 # pyramid levels of the whole-image LK for a feature that leaves
@@ -38,6 +40,10 @@ class FlowParams:
                     criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT,
                               self.iterations, self.epsilon_px),
                     flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+
+    @property
+    def detect_block_px(self) -> int:
+        return self.detect_block or max(3, (self.block_size // self.detect_scale) | 1)
 
     @functools.cached_property
     def lk_patch_kwargs(self) -> dict:
@@ -59,16 +65,27 @@ def coarse_image(img: np.ndarray, params: FlowParams) -> np.ndarray:
 
 
 def detect(img: np.ndarray, params: FlowParams, border_px: int = 0) -> np.ndarray:
-    """Shi–Tomasi corners (N, 2) float32, kept border_px away from the ROI edge."""
+    """Shi–Tomasi corners (N, 2) float32 in img's pixels, kept border_px away from its edge.
+
+    Found on a copy shrunk by detect_scale (averages of s x s pixels): the corner measure is the
+    dearest part of a keyframe on the Pi, and LK needs texture under its window, not a corner's
+    exact spot.
+    """
+    s = params.detect_scale
+    h, w = img.shape
+    small = img if s == 1 else cv2.resize(img, (w // s, h // s), interpolation=cv2.INTER_AREA)
+    b = -(-border_px // s)
     mask = None
-    if border_px:
-        mask = np.zeros(img.shape, np.uint8)
-        mask[border_px:-border_px, border_px:-border_px] = 255
-    pts = cv2.goodFeaturesToTrack(img, params.max_features, params.quality_level,
-                                  params.min_distance_px, mask=mask, blockSize=params.block_size)
+    if b:
+        mask = np.zeros(small.shape, np.uint8)
+        mask[b:-b, b:-b] = 255
+    pts = cv2.goodFeaturesToTrack(small, params.max_features, params.quality_level,
+                                  max(1, params.min_distance_px // s), mask=mask,
+                                  blockSize=params.detect_block_px)
     if pts is None:
         return np.empty((0, 2), np.float32)
-    return pts.reshape(-1, 2)
+    pts = pts.reshape(-1, 2)
+    return pts if s == 1 else pts * s + (s - 1) / 2.0
 
 
 def coarse_shift(prev: np.ndarray, cur: np.ndarray, window: np.ndarray, scale: float):

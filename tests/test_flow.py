@@ -31,7 +31,7 @@ def test_patches_give_what_lk_on_the_whole_images_gives(pair):
     assert (flow._track_patches(a, b, pts, guess, params.patch_px, params)[3]).all()  # all on patch
     assert len(pts) == 30 and ok.all() and wok.all()
     assert np.abs(p1 - w1).max() < 2e-3 and np.abs(rt - wrt).max() < 2e-3
-    assert np.abs(p1 - pts - SHIFT).max() < 0.05
+    assert np.abs(p1 - pts - SHIFT).max() < 0.1
 
 
 @pytest.mark.parametrize("off_px", [7.0, 25.0])
