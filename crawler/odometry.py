@@ -34,7 +34,7 @@ class OdometryParams:
     max_lost_frames: int = 15         # keep hoping for the old keyframe this long, then start afresh
     min_response: float = 0.03        # weakest phase-correlation peak trusted as a first guess
     speed_window_s: float = 0.25      # least-squares speed over this much recent history
-    spread_jump: float = 4.0          # tracks disagreeing this many times more than lately: corrupt frame
+    spread_jump: float = 3.0          # tracks disagreeing this many times more than lately: corrupt frame
     spread_floor_px: float = 0.1      # ...unless they still agree within this
     max_spread_refusals: int = 2      # then believe the new level (the scene changed, not the frame)
 
