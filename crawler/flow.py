@@ -186,8 +186,8 @@ def _track_patches(img0, img1, p0, g, t, params):
     q1, st1, _ = cv2.calcOpticalFlowPyrLK(m0, m1, q0, q[n:].reshape(-1, 1, 2), **lk)
     r = q1.reshape(-1, 2)
     pts1 = r + shift[n:]
-    on_patch = _within(r, lay.patch_mid, lay.half)
-    in_image = _within(pts1, lay.image_mid, lay.image_half)
+    on_patch = within(r, lay.patch_mid, lay.half)
+    in_image = within(pts1, lay.image_mid, lay.image_half)
     good = on_patch & in_image
     if not params.check_backward:
         return pts1, st1.ravel().view(bool) & good, np.zeros(n, np.float32), on_patch | ~in_image
@@ -198,7 +198,7 @@ def _track_patches(img0, img1, p0, g, t, params):
     return pts1, ok, roundtrip, on_patch | ~in_image
 
 
-def _within(p: np.ndarray, mid: np.ndarray, half: np.ndarray) -> np.ndarray:
+def within(p: np.ndarray, mid: np.ndarray, half: np.ndarray) -> np.ndarray:
     """Points (n, 2) inside the boxes mid +- half on both axes (five cheap numpy calls)."""
     off = np.abs(p - mid)
     off -= half

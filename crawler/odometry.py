@@ -120,11 +120,16 @@ def robust_step(values: np.ndarray, floor: float, k: float):
     dev = np.abs(values - med)
     part = dev.copy()
     part.partition(mid, axis=1)
-    sigma = 1.4826 * part[:, mid:mid + 1]
-    inl = (dev <= np.maximum(k * sigma, floor)).all(axis=0)
-    if not inl.any():
-        return med.ravel(), inl, sigma.ravel()
-    return values[:, inl].mean(axis=1), inl, sigma.ravel()
+    sigma = part[:, mid] * 1.4826
+    gate = np.maximum(sigma * k, floor)
+    inl = np.logical_and.reduce(dev <= gate.reshape(-1, 1), axis=0)
+    n_in = np.count_nonzero(inl)
+    if not n_in:
+        return med.ravel(), inl, sigma
+    return values.dot(inl.astype(values.dtype)) / n_in, inl, sigma
+
+
+_LATERAL_AXIAL = np.array([[-1.0], [1.0]])   # moved = keyframe wall - wall, signs per row
 
 
 def _median(values) -> float:
@@ -141,6 +146,8 @@ class _Keyframe:
         self.wall = wall          # (N, 2) metres (s, y)
         self.row_t = row_t        # (N,) seconds after the frame's top row
         self.predict = predict    # (jy, ky, js): pixel motion per metre of axial/lateral step
+        # the same as one (N, 2, 3) matrix: motion = model . (step, step^2, lateral)
+        self.model = np.stack([predict[0], 0.5 * predict[1], predict[2]], axis=-1)
         self.t_s = t_s
         self.distance = distance
         self.lateral = lateral
@@ -159,8 +166,9 @@ class Odometer:
         self._offset = np.array([x, y], np.float64)
         self._border = self.params.flow.win_px // 2 + 1
         b = self._border
-        self._lo, self._hi = np.array([b, b], np.float32), np.array([w - 1 - b, h - 1 - b], np.float32)
-        self._lo0, self._hi0 = np.zeros(2, np.float32), np.array([w - 1, h - 1], np.float32)
+        # where a guess must fall for the feature to be tracked, as a box's centre and half-size
+        mid = np.float32([(w - 1) / 2.0, (h - 1) / 2.0])
+        self._view = (mid, mid - b)
         # wall metres per image pixel at the ROI centre: the unit of the gates, and the Jacobian that
         # turns the global phase-correlation shift into a first guess of the step
         c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
@@ -189,7 +197,7 @@ class Odometer:
         self._prev_t = None
         self._last_good_t = 0.0
         self._prev_pts = None      # last tracked positions of the keyframe's features (ROI px)
-        self._prev_origin = None   # ...and where they were found
+        self._prev_origin = None   # ...and where they were found: (keyframe, indices)
         self._last_step = 0.0      # distance gained since the keyframe at the previous frame
         self._last_lat = 0.0
         self._velocity = 0.0
@@ -234,7 +242,8 @@ class Odometer:
         """Where the features in tracked_points were found in their keyframe (frame pixels)."""
         if self._prev_origin is None or self._prev_pts is None:
             return np.empty((0, 2))
-        return self._prev_origin + self._offset
+        kf, idx = self._prev_origin
+        return kf.pts[idx] + self._offset
 
     # -- internals ----------------------------------------------------------------------------------
 
@@ -267,15 +276,16 @@ class Odometer:
         # each feature's image motion per metre of step, to second order (once per keyframe: the
         # exact inverse projection is too dear for every frame, and the guess need not be exact)
         d = 40 * self.m_per_px
-        ahead = self._pixels(wall + [0.0, -d])
-        behind = self._pixels(wall + [0.0, d])
-        aside = self._pixels(wall + [d, 0.0])
+        n = len(wall)
+        probes = self._pixels(np.concatenate([wall + [0.0, -d], wall + [0.0, d], wall + [d, 0.0]]))
+        ahead, behind, aside = probes[:n], probes[n:2 * n], probes[2 * n:]
         predict = ((ahead - behind) / (2 * d), (ahead + behind - 2 * px) / (d * d), (aside - px) / d)
         self._kf = _Keyframe(img, pts, wall, self.camera.row_time(px[:, 1]), t_s,
                              self.distance, self.lateral, [a.astype(np.float32) for a in predict])
         self._prev_pts = self._kf.pts
-        self._prev_origin = self._kf.pts
-        self._jv = float(np.mean(self._kf.predict[0][:, 1]))   # image rows per metre of step
+        self._prev_origin = (self._kf, slice(None))
+        jv = self._kf.predict[0][:, 1]
+        self._jv = float(jv.sum()) / len(jv)   # image rows per metre of step
         self._last_step = 0.0
         self._last_lat = 0.0
         self._last_good_t = t_s
@@ -295,8 +305,7 @@ class Odometer:
 
     def _predict(self, step: float, lat: float) -> np.ndarray:
         """Where the keyframe's features should be after this axial and lateral step (ROI px)."""
-        jy, ky, js = self._kf.predict
-        return self._kf.pts + jy * step + ky * (0.5 * step * step) + js * lat
+        return self._kf.pts + self._kf.model.dot(np.array([step, step * step, lat], np.float32))
 
     def _coarse_guess(self, img):
         """(step, lateral) from a phase correlation against the last tracked frame, or None.
@@ -318,11 +327,11 @@ class Odometer:
 
     def _track(self, img, step_guess, lat_guess):
         """Track the keyframe's features that should be visible: (indices, positions, n visible)."""
+        kf = self._kf
         guess = self._predict(step_guess, lat_guess)
-        idx = np.flatnonzero(((guess >= self._lo) & (guess <= self._hi)).all(axis=1))
-        pts1, ok, _ = flow.track(self._kf.img, img, self._kf.pts[idx], guess[idx], self.params.flow)
-        ok &= ((pts1 >= self._lo0) & (pts1 <= self._hi0)).all(axis=1)
-        return idx[ok], pts1[ok], len(idx)
+        idx = flow.within(guess, *self._view).nonzero()[0]
+        pts1, ok, _ = flow.track(kf.img, img, kf.pts.take(idx, 0), guess.take(idx, 0), self.params.flow)
+        return idx.compress(ok), pts1.compress(ok, 0), len(idx)     # ok: inside the image too
 
     def _measure(self, img, t_s, rescue: bool = True) -> Estimate:
         p = self.params
@@ -341,7 +350,7 @@ class Odometer:
         if n_tracked >= p.min_tracks:
             px = pts1 + self._offset
             wall = self._wall(px)
-            moved = (kf.wall[idx] - wall).T * [[-1.0], [1.0]]     # rows: lateral, axial
+            moved = (kf.wall.take(idx, 0) - wall).T * _LATERAL_AXIAL     # rows: lateral, axial
             if self._rs:
                 # rolling shutter: a feature's displacement spans dt plus its change of row time
                 dt = t_s - kf.t_s
@@ -364,7 +373,7 @@ class Odometer:
                         or self._refusals >= p.max_spread_refusals)
                 self._refusals = 0 if calm else self._refusals + 1
                 if n_in >= p.min_tracks and n_in >= p.min_inlier_share * n_tracked and calm:
-                    result = (step, lat, n_in, sigma, ratio, pts1[both], idx[both])
+                    result = (step, lat, n_in, sigma, ratio, pts1.compress(both, 0), idx.compress(both))
         if result is None:
             if rescue and self._good_roi is not None and kf.t_s < self._last_good_t:
                 # the keyframe is worn out (features gone, light changed): start one at the last
@@ -388,12 +397,12 @@ class Odometer:
         self.distance = kf.distance + step
         self.lateral = kf.lateral + lat
         self._prev_pts = pts_in
-        self._prev_origin = kf.pts[idx_in]
+        self._prev_origin = (kf, idx_in)
         self.lost_frames = 0
         self._speed.update(t_s, self.distance)
         # renew before the features run out: count those still inside after one more such step
-        ahead = pts_in + kf.predict[0][idx_in] * delta
-        stay = int(np.count_nonzero(((ahead >= self._lo) & (ahead <= self._hi)).all(axis=1)))
+        ahead = pts_in + kf.predict[0].take(idx_in, 0) * delta
+        stay = int(np.count_nonzero(flow.within(ahead, *self._view)))
         renew = (stay < max(p.min_tracks * 2, p.renew_share * kf.n0)
                  or abs(step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, n_in, sigma, keyframe=False)
