@@ -186,16 +186,18 @@ def _track_patches(img0, img1, p0, g, t, params):
     q1, st1, _ = cv2.calcOpticalFlowPyrLK(m0, m1, q0, q[n:].reshape(-1, 1, 2), **lk)
     r = q1.reshape(-1, 2)
     pts1 = r + shift[n:]
+    # a patch lies inside the image, so a result on its patch has its window inside the image
     on_patch = within(r, lay.patch_mid, lay.half)
-    in_image = within(pts1, lay.image_mid, lay.image_half)
-    good = on_patch & in_image
+    settled = on_patch
+    if np.count_nonzero(on_patch) < n:
+        settled = on_patch | ~within(pts1, lay.image_mid, lay.image_half)
     if not params.check_backward:
-        return pts1, st1.ravel().view(bool) & good, np.zeros(n, np.float32), on_patch | ~in_image
+        return pts1, st1.ravel().view(bool) & on_patch, np.zeros(n, np.float32), settled
     back, st2, _ = cv2.calcOpticalFlowPyrLK(m1, m0, q1, q0.copy(), **lk)
     d = (back - q0).reshape(-1, 2)
     roundtrip = np.hypot(d[:, 0], d[:, 1])
-    ok = (st1 & st2).ravel().view(bool) & (roundtrip < params.max_roundtrip_px) & good
-    return pts1, ok, roundtrip, on_patch | ~in_image
+    ok = (st1 & st2).ravel().view(bool) & (roundtrip < params.max_roundtrip_px) & on_patch
+    return pts1, ok, roundtrip, settled
 
 
 def within(p: np.ndarray, mid: np.ndarray, half: np.ndarray) -> np.ndarray:

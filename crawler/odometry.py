@@ -30,6 +30,7 @@ class OdometryParams:
     mad_k: float = 3.5                # inlier gate in robust standard deviations
     inlier_floor_px: float = 0.35     # ...but never tighter than this (in pixels at the ROI centre)
     renew_share: float = 0.5          # new keyframe when fewer than this share of its features remain
+    entry_band: float = 0.6           # moving: new features only in this share of the ROI, where the wall enters
     max_baseline_px: float = 120.0    # new keyframe when features moved this far (perspective change)
     max_lost_frames: int = 15         # keep hoping for the old keyframe this long, then start afresh
     min_response: float = 0.03        # weakest phase-correlation peak trusted as a first guess
@@ -260,8 +261,9 @@ class Odometer:
         if abs(self._motion_v) > 2.0:
             # moving: look for features only on the side the wall comes in from; they stay in view
             # longest, and half the image costs half the detection
-            top = 0 if self._motion_v > 0 else int(0.4 * h)
-            pts = flow.detect(img[top:top + int(0.6 * h)], self.params.flow, self._border)
+            band = int(self.params.entry_band * h)
+            top = 0 if self._motion_v > 0 else h - band
+            pts = flow.detect(img[top:top + band], self.params.flow, self._border)
             pts[:, 1] += top
         else:
             pts = flow.detect(img, self.params.flow, self._border)
