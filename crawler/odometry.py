@@ -123,7 +123,7 @@ def robust_step(values: np.ndarray, floor: float, k: float):
     part.partition(mid, axis=1)
     sigma = part[:, mid] * 1.4826
     gate = np.maximum(sigma * k, floor)
-    inl = np.logical_and.reduce(dev <= gate.reshape(-1, 1), axis=0)
+    inl = np.logical_and.reduce(dev <= gate[:, None], axis=0)
     n_in = np.count_nonzero(inl)
     if not n_in:
         return med.ravel(), inl, sigma
@@ -148,7 +148,7 @@ class _Keyframe:
         self.row_t = row_t        # (N,) seconds after the frame's top row
         self.predict = predict    # (jy, ky, js): pixel motion per metre of axial/lateral step
         # the same as one (N, 2, 3) matrix: motion = model . (step, step^2, lateral)
-        self.model = np.stack([predict[0], 0.5 * predict[1], predict[2]], axis=-1)
+        self.model = np.stack([predict[0], 0.5 * predict[1], predict[2]], axis=-1).reshape(-1, 3)
         self.t_s = t_s
         self.distance = distance
         self.lateral = lateral
@@ -170,6 +170,7 @@ class Odometer:
         # where a guess must fall for the feature to be tracked, as a box's centre and half-size
         mid = np.float32([(w - 1) / 2.0, (h - 1) / 2.0])
         self._view = (mid, mid - b)
+        self._views: dict[int, tuple] = {}   # the same for n points at once (same-shape numpy is cheaper)
         # wall metres per image pixel at the ROI centre: the unit of the gates, and the Jacobian that
         # turns the global phase-correlation shift into a first guess of the step
         c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
@@ -305,9 +306,15 @@ class Odometer:
         n = 0 if self._kf is None else self._kf.n0
         return self._estimate(t_s, ok, n, n if ok else 0, None, keyframe=ok)
 
+    def _view_of(self, n: int) -> tuple:
+        if n not in self._views:
+            self._views[n] = tuple(np.tile(a, (n, 1)) for a in self._view)
+        return self._views[n]
+
     def _predict(self, step: float, lat: float) -> np.ndarray:
         """Where the keyframe's features should be after this axial and lateral step (ROI px)."""
-        return self._kf.pts + self._kf.model.dot(np.array([step, step * step, lat], np.float32))
+        motion = self._kf.model.dot(np.array([step, step * step, lat], np.float32))
+        return self._kf.pts + motion.reshape(-1, 2)
 
     def _coarse_guess(self, img):
         """(step, lateral) from a phase correlation against the last tracked frame, or None.
@@ -331,7 +338,7 @@ class Odometer:
         """Track the keyframe's features that should be visible: (indices, positions, n visible)."""
         kf = self._kf
         guess = self._predict(step_guess, lat_guess)
-        idx = flow.within(guess, *self._view).nonzero()[0]
+        idx = flow.within(guess, *self._view_of(len(guess))).nonzero()[0]
         pts1, ok, _ = flow.track(kf.img, img, kf.pts.take(idx, 0), guess.take(idx, 0), self.params.flow)
         return idx.compress(ok), pts1.compress(ok, 0), len(idx)     # ok: inside the image too
 
@@ -404,7 +411,7 @@ class Odometer:
         self._speed.update(t_s, self.distance)
         # renew before the features run out: count those still inside after one more such step
         ahead = pts_in + kf.predict[0].take(idx_in, 0) * delta
-        stay = int(np.count_nonzero(flow.within(ahead, *self._view)))
+        stay = int(np.count_nonzero(flow.within(ahead, *self._view_of(len(ahead)))))
         renew = (stay < max(p.min_tracks * 2, p.renew_share * kf.n0)
                  or abs(step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, n_in, sigma, keyframe=False)
