@@ -30,7 +30,7 @@ class OdometryParams:
     mad_k: float = 3.5                # inlier gate in robust standard deviations
     inlier_floor_px: float = 0.35     # ...but never tighter than this (in pixels at the ROI centre)
     renew_share: float = 0.5          # new keyframe when fewer than this share of its features remain
-    entry_band: float = 0.6           # moving: new features only in this share of the ROI, where the wall enters
+    entry_band: float = 0.6           # moving: new features only in this share of the ROI (entry side)
     max_baseline_px: float = 120.0    # new keyframe when features moved this far (perspective change)
     max_lost_frames: int = 15         # keep hoping for the old keyframe this long, then start afresh
     min_response: float = 0.03        # weakest phase-correlation peak trusted as a first guess
@@ -169,8 +169,7 @@ class Odometer:
         b = self._border
         # where a guess must fall for the feature to be tracked, as a box's centre and half-size
         mid = np.float32([(w - 1) / 2.0, (h - 1) / 2.0])
-        self._view = (mid, mid - b)
-        self._views: dict[int, tuple] = {}   # the same for n points at once (same-shape numpy is cheaper)
+        self._view, self._views = (mid, mid - b), {}   # ...and tiled for n points (cheaper numpy)
         # wall metres per image pixel at the ROI centre: the unit of the gates, and the Jacobian that
         # turns the global phase-correlation shift into a first guess of the step
         c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
@@ -287,8 +286,7 @@ class Odometer:
                              self.distance, self.lateral, [a.astype(np.float32) for a in predict])
         self._prev_pts = self._kf.pts
         self._prev_origin = (self._kf, slice(None))
-        jv = self._kf.predict[0][:, 1]
-        self._jv = float(jv.sum()) / len(jv)   # image rows per metre of step
+        self._jv = float(self._kf.predict[0][:, 1].sum()) / self._kf.n0   # image rows per metre of step
         self._last_step = 0.0
         self._last_lat = 0.0
         self._last_good_t = t_s
@@ -313,8 +311,7 @@ class Odometer:
 
     def _predict(self, step: float, lat: float) -> np.ndarray:
         """Where the keyframe's features should be after this axial and lateral step (ROI px)."""
-        motion = self._kf.model.dot(np.array([step, step * step, lat], np.float32))
-        return self._kf.pts + motion.reshape(-1, 2)
+        return self._kf.pts + self._kf.model.dot(np.float32([step, step * step, lat])).reshape(-1, 2)
 
     def _coarse_guess(self, img):
         """(step, lateral) from a phase correlation against the last tracked frame, or None.
