@@ -152,9 +152,14 @@ def count_instructions(args, window, h264, n_frames):
 
     with VideoReplay(h264) as src:
         frames = [(f.gray.copy(), f.t_s) for f in src.frames()]
-    tmp = Path(tempfile.mkdtemp())
-    np.save(tmp / "frames.npy", np.stack([g for g, _ in frames]))
-    np.save(tmp / "times.npy", np.array([t for _, t in frames]))
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        np.save(tmp / "frames.npy", np.stack([g for g, _ in frames]))
+        np.save(tmp / "times.npy", np.array([t for _, t in frames]))
+        return _callgrind_runs(args, window, tmp, n_frames)
+
+
+def _callgrind_runs(args, window, tmp: Path, n_frames: int) -> float:
     totals = []
     for n in (n_frames, 2 * n_frames):
         out = tmp / f"cg.{n}"
@@ -214,12 +219,16 @@ def preload(h264: Path, tmp: Path) -> int:
 
 def arm_count(args, window, h264) -> dict:
     """Odometry ARM instructions per frame: slope of the totals, then the per-stage split."""
+    with tempfile.TemporaryDirectory() as tmp:
+        if preload(h264, Path(tmp)) < ARM_FRAMES[1]:
+            raise SystemExit(f"{h264} has fewer than {ARM_FRAMES[1]} frames; use --frames {ARM_FRAMES[1]}")
+        return _arm_runs(args, window, h264, Path(tmp))
+
+
+def _arm_runs(args, window, h264, tmp: Path) -> dict:
     import arm_yardstick as ay
 
     n1, n2 = ARM_FRAMES
-    tmp = Path(tempfile.mkdtemp())
-    if preload(h264, tmp) < n2:
-        raise SystemExit(f"{h264} has fewer than {n2} frames; render with --frames {n2}")
 
     def one(n, marks):
         return ay.run(["benchmarks/throughput.py", "--_arm", str(tmp), str(n), json.dumps(list(window)),
