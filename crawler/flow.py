@@ -1,15 +1,19 @@
 """Feature detection and checked Lucas–Kanade tracking on grey ROIs. Pure: no I/O, no state.
 
 All tuning sits in one frozen FlowParams. (OpenCV's Python binding cannot take a prebuilt pyramid in
-calcOpticalFlowPyrLK — a list is not accepted as InputArray there — so each LK call builds its own.)
+calcOpticalFlowPyrLK — a list is not accepted as InputArray there — so each LK call builds its own
+image derivatives. On the Pi, without NEON, those derivatives cost more than the tracking itself, so
+LK runs on a mosaic of small patches around the features instead of on the whole images.)
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numpy.lib.stride_tricks import as_strided
 
 
 @dataclass(frozen=True)
@@ -17,9 +21,13 @@ class FlowParams:
     max_features: int = 30          # Shi–Tomasi corners per keyframe (docs/performance.md)
     quality_level: float = 0.01     # corner strength relative to the strongest one
     min_distance_px: int = 8        # spread features over the ROI
-    block_size: int = 7
+    block_size: int = 7             # corner measure window at full resolution
+    detect_scale: int = 2           # corners are looked for on the ROI shrunk this many times
+    detect_block: int = 5           # ...with this window there (0: block_size scaled, odd)
     win_px: int = 9                 # LK window (odd)
-    levels: int = 1                 # pyramid levels above full resolution (the guess is good)
+    search_px: int = 3              # how far LK may move from the guess on its patch (the guess is good)
+    levels: int = 1                 # pyramid levels of the whole-image LK for a feature that leaves
+                                    # its patch (the guess was off by more than search_px)
     iterations: int = 10
     epsilon_px: float = 0.01
     max_roundtrip_px: float = 0.5   # forward–backward check
@@ -33,6 +41,20 @@ class FlowParams:
                               self.iterations, self.epsilon_px),
                     flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
 
+    @property
+    def detect_block_px(self) -> int:
+        return self.detect_block or max(3, (self.block_size // self.detect_scale) | 1)
+
+    @functools.cached_property
+    def lk_patch_kwargs(self) -> dict:
+        return dict(self.lk_kwargs, maxLevel=0)
+
+    @property
+    def patch_px(self) -> int:
+        """Side of a feature's patch: its window, one pixel each for the bilinear sample and the
+        Scharr derivative (so the patch's own border never reaches the window), and the search."""
+        return 2 * (self.win_px // 2 + 2 + self.search_px) + 1
+
 
 def coarse_image(img: np.ndarray, params: FlowParams) -> np.ndarray:
     """The low-resolution copy used for the global phase-correlation guess, as float32."""
@@ -43,16 +65,27 @@ def coarse_image(img: np.ndarray, params: FlowParams) -> np.ndarray:
 
 
 def detect(img: np.ndarray, params: FlowParams, border_px: int = 0) -> np.ndarray:
-    """Shi–Tomasi corners (N, 2) float32, kept border_px away from the ROI edge."""
+    """Shi–Tomasi corners (N, 2) float32 in img's pixels, kept border_px away from its edge.
+
+    Found on a copy shrunk by detect_scale (averages of s x s pixels): the corner measure is the
+    dearest part of a keyframe on the Pi, and LK needs texture under its window, not a corner's
+    exact spot.
+    """
+    s = params.detect_scale
+    h, w = img.shape
+    small = img if s == 1 else cv2.resize(img, (w // s, h // s), interpolation=cv2.INTER_AREA)
+    b = -(-border_px // s)
     mask = None
-    if border_px:
-        mask = np.zeros(img.shape, np.uint8)
-        mask[border_px:-border_px, border_px:-border_px] = 255
-    pts = cv2.goodFeaturesToTrack(img, params.max_features, params.quality_level,
-                                  params.min_distance_px, mask=mask, blockSize=params.block_size)
+    if b:
+        mask = np.zeros(small.shape, np.uint8)
+        mask[b:-b, b:-b] = 255
+    pts = cv2.goodFeaturesToTrack(small, params.max_features, params.quality_level,
+                                  max(1, params.min_distance_px // s), mask=mask,
+                                  blockSize=params.detect_block_px)
     if pts is None:
         return np.empty((0, 2), np.float32)
-    return pts.reshape(-1, 2)
+    pts = pts.reshape(-1, 2)
+    return pts if s == 1 else pts * s + (s - 1) / 2.0
 
 
 def coarse_shift(prev: np.ndarray, cur: np.ndarray, window: np.ndarray, scale: float):
@@ -64,18 +97,128 @@ def coarse_shift(prev: np.ndarray, cur: np.ndarray, window: np.ndarray, scale: f
 def track(img0: np.ndarray, img1: np.ndarray, pts0: np.ndarray, guess: np.ndarray, params: FlowParams):
     """Track pts0 from image 0 into image 1 starting at guess; check by tracking back.
 
-    Returns (pts1, ok, roundtrip_px). A point is ok when both directions converge and the
-    backward track lands within max_roundtrip_px of where it started.
+    Returns (pts1, ok, roundtrip_px). A point is ok when both directions converge, the backward
+    track lands within max_roundtrip_px of where it started and its window is inside image 1.
+    LK runs on patches around each feature and its guess, which gives what LK on the whole images
+    at level 0 gives as long as the feature stays on its patch; one that leaves it is tracked again
+    on the whole images, with the pyramid.
     """
     if len(pts0) == 0:
         return pts0.copy(), np.zeros(0, bool), np.zeros(0, np.float32)
-    p0 = np.ascontiguousarray(pts0, np.float32).reshape(-1, 1, 2)
-    p1 = np.ascontiguousarray(guess, np.float32).reshape(-1, 1, 2).copy()
-    lk = params.lk_kwargs
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, p1, **lk)
+    p0 = np.ascontiguousarray(pts0, np.float32).reshape(-1, 2)
+    g = np.ascontiguousarray(guess, np.float32).reshape(-1, 2)
+    t = params.patch_px
+    if min(img0.shape) < t or img0.shape != img1.shape:
+        return _track_whole(img0, img1, p0, g, params)
+    pts1, ok, roundtrip, settled = _track_patches(img0, img1, p0, g, t, params)
+    if np.count_nonzero(settled) < len(p0):
+        left = (~settled).nonzero()[0]
+        pts1[left], ok[left], roundtrip[left] = _track_whole(img0, img1, p0.take(left, 0),
+                                                             g.take(left, 0), params)
+    return pts1, ok, roundtrip
+
+
+class _Layout:
+    """Constant arrays of a mosaic of n patches of side t, stacked in one column, from images of a
+    given shape. Rows 0..n-1 of the (2n, 2) arrays are image 0's patches, rows n..2n-1 image 1's.
+
+    Where a result must stay on its patch: the window plus a pixel for the bilinear sample and one
+    for the derivative, whose values at the patch's edge are not the whole image's; as centre and
+    half-width per axis. A patch kept inside the image ends at the image's own zone there, so a
+    result off its patch but in the image left through an inner side.
+    """
+
+    def __init__(self, n: int, t: int, shape, win_px: int):
+        self.n, self.t = n, t
+        h, w = shape
+        self.tile = np.zeros((2 * n, 2), np.float32)
+        self.tile[:, 1] = (np.arange(2 * n) % n) * t          # each patch's corner in the mosaic
+        self.centre = np.full((2 * n, 2), t // 2, np.float32)
+        self.zero = np.zeros((2 * n, 2), np.float32)
+        self.last = np.tile(np.float32([w - t, h - t]), (2 * n, 1))
+        hw = win_px // 2
+        half = (t - 2 * hw - 4) / 2.0
+        self.patch_mid = self.tile[n:] + (hw + 1 + half)
+        self.half = np.full((n, 2), half, np.float32)
+        self.image_mid = np.tile(np.float32([(w - 2) / 2.0, (h - 2) / 2.0]), (n, 1))
+        self.image_half = self.image_mid - (hw + 1)          # the zone is hw + 1 .. size - hw - 3
+
+
+@functools.lru_cache(maxsize=512)
+def _layout(n: int, t: int, shape, win_px: int) -> _Layout:
+    return _Layout(n, t, shape, win_px)
+
+
+def patches(img: np.ndarray, corners: np.ndarray, t: int) -> np.ndarray:
+    """The t x t patches of img at integer corners (n, 2), stacked into one (n * t, t) image.
+
+    One fancy index on a strided view, patches[y, x] = img[y:y + t, x:x + t]: no Python loop.
+    """
+    h, w = img.shape
+    s0, s1 = img.strides
+    shape, strides = (h - t + 1, w - t + 1, t, t), (s0, s1, s0, s1)
+    if img.flags.c_contiguous:         # np.ndarray on the buffer costs a fifth of as_strided
+        view = np.ndarray(shape, img.dtype, img, 0, strides)
+    else:
+        view = as_strided(img, shape, strides)
+    return view[corners[:, 1], corners[:, 0]].reshape(-1, t)
+
+
+def _track_patches(img0, img1, p0, g, t, params):
+    """LK on two mosaics of t x t patches: image 0 around p0, image 1 around the guesses.
+
+    Returns (pts1, ok, roundtrip, settled): a result is ok only on its patch and with its window
+    inside image 1; not `settled` are those that left their patch through an inner side.
+    """
+    n = len(p0)
+    lay = _layout(n, t, img0.shape, params.win_px)
+    pos = np.concatenate([p0, g])
+    corner = np.floor(pos)
+    corner -= lay.centre
+    np.maximum(corner, lay.zero, out=corner)
+    np.minimum(corner, lay.last, out=corner)
+    shift = corner - lay.tile                         # image position - mosaic position
+    q = pos - shift
+    ci = corner.astype(np.intp)
+    m0, m1 = patches(img0, ci[:n], t), patches(img1, ci[n:], t)
+    q0 = q[:n].reshape(-1, 1, 2)
+    lk = params.lk_patch_kwargs
+    q1, st1, _ = cv2.calcOpticalFlowPyrLK(m0, m1, q0, q[n:].reshape(-1, 1, 2), **lk)
+    r = q1.reshape(-1, 2)
+    pts1 = r + shift[n:]
+    # a patch lies inside the image, so a result on its patch has its window inside the image
+    on_patch = within(r, lay.patch_mid, lay.half)
+    settled = on_patch
+    if np.count_nonzero(on_patch) < n:
+        settled = on_patch | ~within(pts1, lay.image_mid, lay.image_half)
     if not params.check_backward:
-        return p1.reshape(-1, 2), st1.ravel() == 1, np.zeros(len(p0), np.float32)
-    back, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1, p0.copy(), **lk)
+        return pts1, st1.ravel().view(bool) & on_patch, np.zeros(n, np.float32), settled
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(m1, m0, q1, q0.copy(), **lk)
+    d = (back - q0).reshape(-1, 2)
+    roundtrip = np.hypot(d[:, 0], d[:, 1])
+    ok = (st1 & st2).ravel().view(bool) & (roundtrip < params.max_roundtrip_px) & on_patch
+    return pts1, ok, roundtrip, settled
+
+
+def within(p: np.ndarray, mid: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Points (n, 2) inside the boxes mid +- half on both axes (five cheap numpy calls)."""
+    off = np.abs(p - mid)
+    off -= half
+    return np.maximum(off[:, 0], off[:, 1]) <= 0
+
+
+def _track_whole(img0, img1, p0, g, params):
+    """LK on the whole images with the pyramid of params.levels."""
+    p0 = p0.reshape(-1, 1, 2)
+    lk = params.lk_kwargs
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(img0, img1, p0, g.reshape(-1, 1, 2).copy(), **lk)
+    p1 = p1.reshape(-1, 2)
+    h, w = img1.shape
+    b = params.win_px // 2 + 1                                 # the patches' zone (_Layout)
+    inside = ((p1 >= b) & (p1 <= (w - 2 - b, h - 2 - b))).all(axis=1)
+    if not params.check_backward:
+        return p1, (st1.ravel() == 1) & inside, np.zeros(len(p0), np.float32)
+    back, st2, _ = cv2.calcOpticalFlowPyrLK(img1, img0, p1.reshape(-1, 1, 2), p0.copy(), **lk)
     roundtrip = np.linalg.norm((back - p0).reshape(-1, 2), axis=1)
-    ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (roundtrip < params.max_roundtrip_px)
-    return p1.reshape(-1, 2), ok, roundtrip
+    ok = (st1.ravel() == 1) & (st2.ravel() == 1) & (roundtrip < params.max_roundtrip_px) & inside
+    return p1, ok, roundtrip

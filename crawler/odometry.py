@@ -30,11 +30,12 @@ class OdometryParams:
     mad_k: float = 3.5                # inlier gate in robust standard deviations
     inlier_floor_px: float = 0.35     # ...but never tighter than this (in pixels at the ROI centre)
     renew_share: float = 0.5          # new keyframe when fewer than this share of its features remain
+    entry_band: float = 0.6           # moving: new features only in this share of the ROI (entry side)
     max_baseline_px: float = 120.0    # new keyframe when features moved this far (perspective change)
     max_lost_frames: int = 15         # keep hoping for the old keyframe this long, then start afresh
     min_response: float = 0.03        # weakest phase-correlation peak trusted as a first guess
     speed_window_s: float = 0.25      # least-squares speed over this much recent history
-    spread_jump: float = 4.0          # tracks disagreeing this many times more than lately: corrupt frame
+    spread_jump: float = 3.0          # tracks disagreeing this many times more than lately: corrupt frame
     spread_floor_px: float = 0.1      # ...unless they still agree within this
     max_spread_refusals: int = 2      # then believe the new level (the scene changed, not the frame)
 
@@ -130,11 +131,16 @@ def robust_step(values: np.ndarray, floor: float, k: float):
     dev = np.abs(values - med)
     part = dev.copy()
     part.partition(mid, axis=1)
-    sigma = 1.4826 * part[:, mid:mid + 1]
-    inl = (dev <= np.maximum(k * sigma, floor)).all(axis=0)
-    if not inl.any():
-        return med.ravel(), inl, sigma.ravel()
-    return values[:, inl].mean(axis=1), inl, sigma.ravel()
+    sigma = part[:, mid] * 1.4826
+    gate = np.maximum(sigma * k, floor)
+    inl = np.logical_and.reduce(dev <= gate[:, None], axis=0)
+    n_in = np.count_nonzero(inl)
+    if not n_in:
+        return med.ravel(), inl, sigma
+    return values.dot(inl.astype(values.dtype)) / n_in, inl, sigma
+
+
+_LATERAL_AXIAL = np.array([[-1.0], [1.0]])   # moved = keyframe wall - wall, signs per row
 
 
 def _median(values) -> float:
@@ -151,6 +157,8 @@ class _Keyframe:
         self.wall = wall          # (N, 2) metres (s, y)
         self.row_t = row_t        # (N,) seconds after the frame's top row
         self.predict = predict    # (jy, ky, js): pixel motion per metre of axial/lateral step
+        # the same as one (N, 2, 3) matrix: motion = model . (step, step^2, lateral)
+        self.model = np.stack([predict[0], 0.5 * predict[1], predict[2]], axis=-1).reshape(-1, 3)
         self.t_s = t_s
         self.distance = distance
         self.lateral = lateral
@@ -169,8 +177,9 @@ class Odometer:
         self._offset = np.array([x, y], np.float64)
         self._border = self.params.flow.win_px // 2 + 1
         b = self._border
-        self._lo, self._hi = np.array([b, b], np.float32), np.array([w - 1 - b, h - 1 - b], np.float32)
-        self._lo0, self._hi0 = np.zeros(2, np.float32), np.array([w - 1, h - 1], np.float32)
+        # where a guess must fall for the feature to be tracked, as a box's centre and half-size
+        mid = np.float32([(w - 1) / 2.0, (h - 1) / 2.0])
+        self._view, self._views = (mid, mid - b), {}   # ...and tiled for n points (cheaper numpy)
         # wall metres per image pixel at the ROI centre: the unit of the gates, and the Jacobian that
         # turns the global phase-correlation shift into a first guess of the step
         c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
@@ -199,7 +208,7 @@ class Odometer:
         self._prev_t = None
         self._last_good_t = 0.0
         self._prev_pts = None      # last tracked positions of the keyframe's features (ROI px)
-        self._prev_origin = None   # ...and where they were found
+        self._prev_origin = None   # ...and where they were found: (keyframe, indices)
         self._last_step = 0.0      # distance gained since the keyframe at the previous frame
         self._last_lat = 0.0
         self._velocity = 0.0
@@ -245,7 +254,8 @@ class Odometer:
         """Where the features in tracked_points were found in their keyframe (frame pixels)."""
         if self._prev_origin is None or self._prev_pts is None:
             return np.empty((0, 2))
-        return self._prev_origin + self._offset
+        kf, idx = self._prev_origin
+        return kf.pts[idx] + self._offset
 
     # -- internals ----------------------------------------------------------------------------------
 
@@ -262,8 +272,9 @@ class Odometer:
         if abs(self._motion_v) > 2.0:
             # moving: look for features only on the side the wall comes in from; they stay in view
             # longest, and half the image costs half the detection
-            top = 0 if self._motion_v > 0 else int(0.4 * h)
-            pts = flow.detect(img[top:top + int(0.6 * h)], self.params.flow, self._border)
+            band = int(self.params.entry_band * h)
+            top = 0 if self._motion_v > 0 else h - band
+            pts = flow.detect(img[top:top + band], self.params.flow, self._border)
             pts[:, 1] += top
         else:
             pts = flow.detect(img, self.params.flow, self._border)
@@ -278,15 +289,15 @@ class Odometer:
         # each feature's image motion per metre of step, to second order (once per keyframe: the
         # exact inverse projection is too dear for every frame, and the guess need not be exact)
         d = 40 * self.m_per_px
-        ahead = self._pixels(wall + [0.0, -d])
-        behind = self._pixels(wall + [0.0, d])
-        aside = self._pixels(wall + [d, 0.0])
+        n = len(wall)
+        probes = self._pixels(np.concatenate([wall + [0.0, -d], wall + [0.0, d], wall + [d, 0.0]]))
+        ahead, behind, aside = probes[:n], probes[n:2 * n], probes[2 * n:]
         predict = ((ahead - behind) / (2 * d), (ahead + behind - 2 * px) / (d * d), (aside - px) / d)
         self._kf = _Keyframe(img, pts, wall, self.camera.row_time(px[:, 1]), t_s,
                              self.distance, self.lateral, [a.astype(np.float32) for a in predict])
         self._prev_pts = self._kf.pts
-        self._prev_origin = self._kf.pts
-        self._jv = float(np.mean(self._kf.predict[0][:, 1]))   # image rows per metre of step
+        self._prev_origin = (self._kf, slice(None))
+        self._jv = float(self._kf.predict[0][:, 1].sum()) / self._kf.n0   # image rows per metre of step
         self._last_step = 0.0
         self._last_lat = 0.0
         self._last_good_t = t_s
@@ -307,10 +318,14 @@ class Odometer:
             est.continuous, self._blind_restart = not self._blind_restart, False
         return est
 
+    def _view_of(self, n: int) -> tuple:
+        if n not in self._views:
+            self._views[n] = tuple(np.tile(a, (n, 1)) for a in self._view)
+        return self._views[n]
+
     def _predict(self, step: float, lat: float) -> np.ndarray:
         """Where the keyframe's features should be after this axial and lateral step (ROI px)."""
-        jy, ky, js = self._kf.predict
-        return self._kf.pts + jy * step + ky * (0.5 * step * step) + js * lat
+        return self._kf.pts + self._kf.model.dot(np.float32([step, step * step, lat])).reshape(-1, 2)
 
     def _coarse_guess(self, img):
         """(step, lateral) from a phase correlation against the last tracked frame, or None.
@@ -332,11 +347,11 @@ class Odometer:
 
     def _track(self, img, step_guess, lat_guess):
         """Track the keyframe's features that should be visible: (indices, positions, n visible)."""
+        kf = self._kf
         guess = self._predict(step_guess, lat_guess)
-        idx = np.flatnonzero(((guess >= self._lo) & (guess <= self._hi)).all(axis=1))
-        pts1, ok, _ = flow.track(self._kf.img, img, self._kf.pts[idx], guess[idx], self.params.flow)
-        ok &= ((pts1 >= self._lo0) & (pts1 <= self._hi0)).all(axis=1)
-        return idx[ok], pts1[ok], len(idx)
+        idx = flow.within(guess, *self._view_of(len(guess))).nonzero()[0]
+        pts1, ok, _ = flow.track(kf.img, img, kf.pts.take(idx, 0), guess.take(idx, 0), self.params.flow)
+        return idx.compress(ok), pts1.compress(ok, 0), len(idx)     # ok: inside the image too
 
     def _measure(self, img, t_s, rescue: bool = True) -> Estimate:
         p = self.params
@@ -355,7 +370,7 @@ class Odometer:
         if n_tracked >= p.min_tracks:
             px = pts1 + self._offset
             wall = self._wall(px)
-            moved = (kf.wall[idx] - wall).T * [[-1.0], [1.0]]     # rows: lateral, axial
+            moved = (kf.wall.take(idx, 0) - wall).T * _LATERAL_AXIAL     # rows: lateral, axial
             if self._rs:
                 # rolling shutter: a feature's displacement spans dt plus its change of row time
                 dt = t_s - kf.t_s
@@ -378,7 +393,7 @@ class Odometer:
                         or self._refusals >= p.max_spread_refusals)
                 self._refusals = 0 if calm else self._refusals + 1
                 if n_in >= p.min_tracks and n_in >= p.min_inlier_share * n_tracked and calm:
-                    result = (step, lat, n_in, sigma, ratio, pts1[both], idx[both])
+                    result = (step, lat, n_in, sigma, ratio, pts1.compress(both, 0), idx.compress(both))
         if result is None:
             if rescue and self._good_roi is not None and kf.t_s < self._last_good_t:
                 # the keyframe is worn out (features gone, light changed): start one at the last
@@ -402,12 +417,12 @@ class Odometer:
         self.distance = kf.distance + step
         self.lateral = kf.lateral + lat
         self._prev_pts = pts_in
-        self._prev_origin = kf.pts[idx_in]
+        self._prev_origin = (kf, idx_in)
         self.lost_frames = 0
         self._speed.update(t_s, self.distance)
         # renew before the features run out: count those still inside after one more such step
-        ahead = pts_in + kf.predict[0][idx_in] * delta
-        stay = int(np.count_nonzero(((ahead >= self._lo) & (ahead <= self._hi)).all(axis=1)))
+        ahead = pts_in + kf.predict[0].take(idx_in, 0) * delta
+        stay = int(np.count_nonzero(flow.within(ahead, *self._view_of(len(ahead)))))
         renew = (stay < max(p.min_tracks * 2, p.renew_share * kf.n0)
                  or abs(step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, n_in, sigma, keyframe=False)

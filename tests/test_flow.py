@@ -1,0 +1,67 @@
+"""LK on patches: the same tracks as LK on the whole images, at a fraction of the Pi's cost."""
+
+import cv2
+import numpy as np
+import pytest
+
+from crawler import flow
+from crawler.flow import FlowParams
+
+SHIFT = np.float32([0.37, 6.62])      # the wall's motion between the two frames (px)
+
+
+@pytest.fixture(scope="module")
+def pair():
+    rng = np.random.default_rng(3)
+    tex = cv2.GaussianBlur((rng.random((400, 400)) * 255).astype(np.float32), (0, 0), 1.5)
+    tex = cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX)
+    a = tex[80:320, 80:320].astype(np.uint8)
+    m = np.float32([[1, 0, SHIFT[0] - 80], [0, 1, SHIFT[1] - 80]])
+    b = cv2.warpAffine(tex, m, (240, 240), flags=cv2.INTER_CUBIC).astype(np.uint8)
+    pts = flow.detect(a, FlowParams(), border_px=30)
+    return a, b, pts
+
+
+def test_patches_give_what_lk_on_the_whole_images_gives(pair):
+    a, b, pts = pair
+    guess = pts + SHIFT + np.random.default_rng(1).uniform(-1, 1, pts.shape).astype(np.float32)
+    params = FlowParams()
+    p1, ok, rt = flow.track(a, b, pts, guess, params)
+    w1, wok, wrt = flow._track_whole(a, b, pts, guess, FlowParams(levels=0))
+    assert (flow._track_patches(a, b, pts, guess, params.patch_px, params)[3]).all()  # all on patch
+    assert len(pts) == 30 and ok.all() and wok.all()
+    assert np.abs(p1 - w1).max() < 2e-3 and np.abs(rt - wrt).max() < 2e-3
+    assert np.abs(p1 - pts - SHIFT).max() < 0.1
+
+
+@pytest.mark.parametrize("off_px", [7.0, 25.0])
+def test_features_that_leave_their_patch_get_the_pyramid_on_the_whole_images(pair, off_px):
+    a, b, pts = pair
+    guess = pts + SHIFT + np.float32([0, off_px])
+    params = FlowParams(levels=3)
+    p1, ok, _ = flow.track(a, b, pts, guess, params)
+    left = ~flow._track_patches(a, b, pts, guess, params.patch_px, params)[3]
+    w1, wok, _ = flow._track_whole(a, b, pts[left], guess[left], params)
+    assert left.sum() >= 5
+    assert (p1[left] == w1).all() and (ok[left] == wok).all()
+    # the consensus of what is ok is the true motion (a far-off guess may settle some on a wrong spot)
+    assert np.abs(np.median(p1[ok] - pts[ok], axis=0) - SHIFT).max() < 0.05
+
+
+def test_a_feature_whose_window_leaves_the_image_is_not_ok(pair):
+    a, b, pts = pair
+    near = np.float32([[120, 4.5], [120, 233.5], [3.0, 120], [120, 120]])
+    p1, ok, _ = flow.track(a, b, near - SHIFT, near, FlowParams())
+    assert ok.tolist() == [False, False, False, True]
+
+
+@pytest.mark.parametrize("contiguous", [True, False])
+def test_patches_are_the_image_blocks_stacked(contiguous):
+    img = np.arange(300 * 320, dtype=np.uint32).reshape(300, 320).astype(np.uint8)
+    roi = img[10:250, 20:260]
+    if contiguous:
+        roi = roi.copy()
+    corners = np.array([[0, 0], [221, 3], [17, 221], [100, 50]], np.intp)
+    got = flow.patches(roi, corners, 19)
+    want = np.concatenate([roi[y:y + 19, x:x + 19] for x, y in corners])
+    assert got.shape == (4 * 19, 19) and (got == want).all()
