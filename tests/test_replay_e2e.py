@@ -70,7 +70,7 @@ def test_reverse_and_stop_and_go(render_run, crawlerd, tmp_path):
     assert rc == 0 and err_pct(s, run["truth"]) < 0.3
 
 
-def test_featureless_patch_reports_lost_and_integrates_nothing(render_run, crawlerd, tmp_path):
+def test_a_featureless_patch_is_bridged_and_said_so(render_run, crawlerd, tmp_path):
     run = render_run("wet", speed_m_s=0.2, featureless=((0.15, 0.35),), duration_s=3.0)
     log = tmp_path / "wet.jsonl"
     rc, s, _ = crawlerd("--replay", run["h264"], "--log", log)
@@ -78,9 +78,14 @@ def test_featureless_patch_reports_lost_and_integrates_nothing(render_run, crawl
     rows = [json.loads(line) for line in log.read_text().splitlines()]
     lost = [r for r in rows if not r["tracking"]]
     assert all(r["quality"] == 0 and r["speed_m_s"] is None for r in lost)
-    # held while blind: never more than the truth, the gap is missing, not invented
-    assert s["distance_m"] < run["truth"]["true_distance_m"]
-    assert rows[-1]["tracking"]
+    assert all(r["bridged"] and r["source"] == "model" for r in lost)       # carried, and said so
+    truth = read_ground_truth(run["csv"])
+    err = [abs(r["distance_m"] - truth["distance_m"][r["frame"]]) for r in rows]
+    assert max(err) < 0.01 and err[-1] < 0.005                            # the gap's distance is not lost
+    sigma = [r["sigma_m"] for r in lost]
+    assert sigma == sorted(sigma) and sigma[-1] > 5 * rows[0]["sigma_m"]  # sigma grows with bridged time
+    assert all(e <= 2 * r["sigma_m"] for e, r in zip(err, rows) if r["bridged"])
+    assert rows[-1]["tracking"] and not rows[-1]["bridged"]
 
 
 def test_log_and_annotated_video(render_run, crawlerd, tmp_path):
