@@ -33,6 +33,7 @@ class FlowParams:
     max_roundtrip_px: float = 0.5   # forward–backward check
     check_backward: bool = True     # the backward LK call of that check (half the tracking cost)
     coarse_level: int = 2           # pyramid level of the phase-correlation first guess
+    saturated_dn: int = 250         # grey level of a highlight: no features on or around it (0: off)
 
     @property
     def lk_kwargs(self) -> dict:
@@ -79,6 +80,13 @@ def detect(img: np.ndarray, params: FlowParams, border_px: int = 0) -> np.ndarra
     if b:
         mask = np.zeros(small.shape, np.uint8)
         mask[b:-b, b:-b] = 255
+    if params.saturated_dn and cv2.minMaxLoc(small)[1] >= params.saturated_dn:
+        # a specular highlight stays put in the image while the wall moves under it: its rim is
+        # texture that does not move, so no feature is taken on or next to it
+        glare = cv2.dilate((small >= params.saturated_dn).astype(np.uint8), None,
+                           iterations=max(1, params.detect_block_px))
+        mask = np.full(small.shape, 255, np.uint8) if mask is None else mask
+        mask[glare > 0] = 0
     pts = cv2.goodFeaturesToTrack(small, params.max_features, params.quality_level,
                                   max(1, params.min_distance_px // s), mask=mask,
                                   blockSize=params.detect_block_px)
@@ -86,6 +94,14 @@ def detect(img: np.ndarray, params: FlowParams, border_px: int = 0) -> np.ndarra
         return np.empty((0, 2), np.float32)
     pts = pts.reshape(-1, 2)
     return pts if s == 1 else pts * s + (s - 1) / 2.0
+
+
+def texture_energy(img: np.ndarray) -> float:
+    """How much fine texture a grey image has: the mean absolute difference of horizontal pixel
+    neighbours on every 4th row (a few thousand pixels: cheap). Sensor noise alone gives about
+    1.1 sigma; lit concrete tens of grey levels; a dark, wet or smooth wall little more than noise."""
+    rows = img[::4]
+    return float(cv2.mean(cv2.absdiff(rows[:, 1::2], rows[:, :-1:2]))[0])
 
 
 def coarse_shift(prev: np.ndarray, cur: np.ndarray, window: np.ndarray, scale: float):

@@ -5,14 +5,16 @@ featureless stretch, a camera stall, frames that never came). When it finds the 
 measured across the gap (its distance includes the motion in the gap: `continuous`) or had to start
 afresh (its distance does not). This stage turns that into a distance that never stops:
 
-- while blind, the distance is carried by a motion model (the speed before the gap) and published
-  as `bridged`;
-- when tracking returns on a fresh start, the gap's distance is the trapezoid of the speed before
-  and the speed after (a constant acceleration over the gap), the latter measured over the first
-  moments of tracking, and the bridged stretch is corrected by that;
+- while blind, the distance is carried by a motion model: the speed and acceleration measured just
+  before the gap (a crawler that was braking is taken to stop, not to reverse); published `bridged`;
+- after a fresh start, the gap's distance is settled once the speed after it is measured: the
+  trapezoid of the speeds before and after (a constant acceleration over the gap), or, when the
+  model had the crawler stop inside the gap, its braking to a stop and a start at the same rate up
+  to the speed after. A measurement too short to give a speed does not close the gap: if the wall
+  is lost again at once, the gap simply goes on from where it began;
 - every estimate carries `sigma_m`, its 1-sigma uncertainty: the measurement's own (closed keyframe
   steps: the spread of the tracks over their number, and a scale term) and, for every bridged gap,
-  the motion model's (the speed's error and an acceleration that was not constant).
+  the motion model's (the speed's error and an acceleration it could not see).
 
 Pure: no I/O, no clock; fed one odometer estimate per frame.
 """
@@ -20,16 +22,23 @@ Pure: no I/O, no clock; fed one odometer estimate per frame.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
+
+import numpy as np
 
 
 @dataclass(frozen=True)
 class BridgeParams:
-    scale_sigma: float = 5e-4         # relative scale uncertainty of the geometry (FOV, height): per metre
+    scale_sigma: float = 2e-3         # relative error of one keyframe step (pose jitter, bounce, geometry)
     step_floor_m: float = 2e-5        # a keyframe step is never known better than this (LK, compression)
-    accel_sigma_m_s2: float = 0.1     # 1-sigma acceleration the model cannot see over a gap
+    accel_sigma_m_s2: float = 0.3     # 1-sigma acceleration the model cannot see over a gap
     speed_sigma_m_s: float = 0.005    # 1-sigma error of a measured speed (0.25 s least squares)
-    settle_s: float = 0.25            # after a fresh start, measure the speed this long before correcting
+    unknown_speed_m_s: float = 0.5    # 1-sigma speed of a crawler never measured yet (a run starting blind)
+    max_accel_m_s2: float = 1.0       # the model never extrapolates a stronger acceleration
+    history_s: float = 0.3            # speed and acceleration before a gap: fitted over this much
+    min_accel_m_s2: float = 0.15      # a fitted acceleration below this is noise: constant speed
+    settle_s: float = 0.25            # after a fresh start, measure the speed this long before settling
     max_bridge_s: float = 30.0        # beyond this the model is a guess: the speed fades to 0 over it
 
 
@@ -44,6 +53,14 @@ class Bridged:
     gap_s: float = 0.0                # how long the current (or just closed) gap is
 
 
+@dataclass
+class _Gap:
+    t0: float                         # the last measured frame before it
+    d0: float                         # the distance published then
+    v0: float | None                  # speed then (None: never measured)
+    a0: float                         # acceleration then (0 if unknown)
+
+
 class GapBridge:
     """Vision distance in, a distance out that is measured where it can be and bridged where not."""
 
@@ -53,10 +70,10 @@ class GapBridge:
         self.var_meas = sigma_m * sigma_m   # closed keyframe steps (and what a resumed run carried)
         self.var_gaps = 0.0           # closed gaps
         self._kf_vision = None        # the odometer's distance at the current keyframe
-        self._last = None             # (t, vision distance, speed) of the last tracked frame
-        self._gap = None              # (t0, distance out at t0, speed before) while blind
-        self._gap_prev_var = 0.0      # the open gap's variance at the previous blind frame
-        self._settle = None           # after a fresh start: (t_start, gap_T, v_before, samples)
+        self._hist: deque = deque()   # (t, published distance) of recent measured frames
+        self._gap: _Gap | None = None  # open (blind), or settling after a fresh start
+        self._settling = None         # (t_start, vision distance samples) while the gap settles
+        self._gap_prev_var = 0.0
         self._out_m = distance_m
 
     @property
@@ -77,52 +94,91 @@ class GapBridge:
         spread_mm, inliers."""
         return self._tracked(est) if est.tracking else self._blind(est)
 
-    # -- blind: the motion model ---------------------------------------------------------------------
+    # -- the motion model ------------------------------------------------------------------------------
+
+    def _motion_before(self, t0: float):
+        """(speed, acceleration) at t0 from the recent measured frames (None, 0: never measured)."""
+        h = [(t, d) for t, d in self._hist if t >= t0 - self.p.history_s]
+        if len(h) < 2:
+            return None, 0.0
+        ts, ds = [t - t0 for t, _ in h], [d for _, d in h]
+        if len(h) < 5 or ts[-1] - ts[0] < 0.5 * self.p.history_s:
+            return _slope(ts, ds), 0.0
+        _, v, a2 = _quadratic(ts, ds)
+        a = max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, 2 * a2))
+        return v, (a if abs(a) >= self.p.min_accel_m_s2 else 0.0)
+
+    def _travel(self, g: _Gap, T: float) -> float:
+        """Distance over T at the speed and acceleration before the gap; a crawler that was braking
+        stops (it does not reverse); beyond max_bridge_s the speed fades out."""
+        if g.v0 is None:
+            return 0.0
+        m = self.p.max_bridge_s
+        v0, a = g.v0, g.a0
+        if a and v0 * a < 0 and -v0 / a < T:          # braking: stops inside the gap
+            ts = -v0 / a
+            return v0 * ts + 0.5 * a * ts * ts
+        T_eff = T if T <= m else m + (T - m) * max(0.0, 1 - (T - m) / m) / 2
+        return v0 * T_eff + 0.5 * a * min(T, m) ** 2
+
+    def _stops(self, g: _Gap, T: float) -> float | None:
+        """When the model had the crawler stop inside the gap (s after its start), else None."""
+        if g.v0 is None or not g.a0 or g.v0 * g.a0 >= 0 or -g.v0 / g.a0 >= T:
+            return None
+        return -g.v0 / g.a0
+
+    def _model_var(self, T: float, dv: float, v0: float | None = 0.0) -> float:
+        """Variance of a gap of T bridged at a measured speed: the speed's error, and an acceleration
+        the model does not see (larger when the speed before and after differ by dv). Without any
+        measured speed (a run that starts blind) the speed itself is unknown."""
+        accel = math.hypot(self.p.accel_sigma_m_s2, dv / max(T, 1e-3))
+        sv = self.p.speed_sigma_m_s if v0 is not None else self.p.unknown_speed_m_s
+        return (sv * T) ** 2 + (0.5 * accel * T * T) ** 2
+
+    # -- blind ----------------------------------------------------------------------------------------
 
     def _blind(self, est) -> Bridged:
+        if self._settling is not None:    # the measurement since the gap was too short: it goes on
+            self._settle_or_reopen()
         if self._gap is None:
-            if self._last is None:    # never tracked yet: nothing to carry
+            if not self._hist:            # never measured yet: nothing to carry
                 return Bridged(self._out_m, self.sigma_m, False, self.p.step_floor_m)
-            t0, _, v0 = self._last
-            self._gap, self._gap_prev_var = (t0, self._out_m, v0), 0.0
-            self._settle = None       # a gap inside the settling: its speed estimate is void
-        t0, d0, v0 = self._gap
-        T = est.t_s - t0
-        var = self._model_var(T, 0.0)
+            t0 = self._hist[-1][0]
+            self._gap = _Gap(t0, self._out_m, *self._motion_before(t0))
+            self._gap_prev_var = 0.0
+        g = self._gap
+        T = est.t_s - g.t0
+        var = self._model_var(T, 0.0, g.v0)
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
-        out = d0 + self._travel(v0, T)
+        out = g.d0 + self._travel(g, T)
         return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var), True, step, T)
 
-    def _travel(self, v0: float, T: float) -> float:
-        """Distance at constant speed v0 over T, the speed fading out beyond max_bridge_s."""
-        m = self.p.max_bridge_s
-        return v0 * (T if T <= m else m + (T - m) * max(0.0, 1 - (T - m) / m) / 2)
-
-    def _model_var(self, T: float, dv: float) -> float:
-        """Variance of a gap of T bridged at a measured speed: the speed's error, and an acceleration
-        the model does not see (larger when the speed before and after differ by dv)."""
-        accel = math.hypot(self.p.accel_sigma_m_s2, dv / max(T, 1e-3))
-        return (self.p.speed_sigma_m_s * T) ** 2 + (0.5 * accel * T * T) ** 2
-
-    # -- tracking: the measurement ----------------------------------------------------------------------
+    # -- measured -------------------------------------------------------------------------------------
 
     def _tracked(self, est) -> Bridged:
-        gap_T = self._close_gap(est) if self._gap is not None else 0.0
+        gap_T = 0.0
+        if self._gap is None and not est.continuous and self._hist:
+            t0 = self._hist[-1][0]            # a fresh start right after a measured frame: a gap of one
+            self._gap = _Gap(t0, self._out_m, *self._motion_before(t0))
+        if self._gap is not None and self._settling is None:
+            gap_T = self._close_gap(est)
+        elif self._settling is not None:
+            self._settling[1].append((est.t_s, est.distance_m))
+            if est.t_s - self._settling[0] >= self.p.settle_s:
+                self._settle_or_reopen()
         if self._kf_vision is None:
             self._kf_vision = est.distance_m
-        if self._settle is not None:
-            self._settle_speed(est)
         step_var = self._step_var(est)
         if est.keyframe:              # the keyframe's step is closed: its error is carried from now on
             self.var_meas += step_var
             self._kf_vision = est.distance_m
-        v = est.speed_m_s if est.speed_m_s is not None else (self._last[2] if self._last else 0.0)
-        self._last = (est.t_s, est.distance_m, v)
         self._out_m = est.distance_m + self.offset_m
-        noise = self._frame_noise(est)
+        self._hist.append((est.t_s, self._out_m))
+        while self._hist and self._hist[0][0] < est.t_s - 2 * self.p.history_s:
+            self._hist.popleft()
         total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var)
-        return Bridged(self._out_m, math.sqrt(total), False, noise, gap_T)
+        return Bridged(self._out_m, math.sqrt(total), False, self._frame_noise(est), gap_T)
 
     def _frame_noise(self, est) -> float:
         spread = (est.spread_mm or 0.0) / 1000.0
@@ -134,31 +190,51 @@ class GapBridge:
         return self._frame_noise(est) ** 2 + (self.p.scale_sigma * step) ** 2
 
     def _close_gap(self, est) -> float:
-        t0, d0, v0 = self._gap
-        self._gap = None
-        T = est.t_s - t0
+        g = self._gap
+        T = est.t_s - g.t0
         if est.continuous:            # measured across the gap: the odometer's distance has it all,
-            self.var_meas += self.p.step_floor_m ** 2      # the offset stays as it was before the gap
-        else:                         # a fresh start: the gap's distance is the model's, corrected later
-            self.offset_m = d0 + self._travel(v0, T) - est.distance_m
-            self.var_gaps += self._model_var(T, 0.0)
-            self._settle = (est.t_s, T, v0, [(est.t_s, est.distance_m)])
+            self._gap = None          # and the offset stays as it was before the gap
+            self.var_meas += self.p.step_floor_m ** 2
+        else:                         # a fresh start: provisionally the model's, settled later
+            self.offset_m = g.d0 + self._travel(g, T) - est.distance_m
+            self._settling = (est.t_s, [(est.t_s, est.distance_m)])
         self._kf_vision = est.distance_m
         return T
 
-    def _settle_speed(self, est):
-        """After a fresh start: once the speed after the gap is measured, the trapezoid replaces the
-        constant speed over the gap, and its variance the constant speed's."""
-        t_start, T, v0, samples = self._settle
-        samples.append((est.t_s, est.distance_m))
-        if est.t_s - t_start < self.p.settle_s:
+    def _settle_or_reopen(self):
+        """Settle the gap with the speed measured since it, or, measured too briefly for a speed,
+        reopen it: it goes on from where it began."""
+        g, (t1, samples) = self._gap, self._settling
+        self._settling = None
+        v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if len(samples) >= 2 else None
+        if v1 is None:                # reopen: drop what the short measurement added to the history
+            while self._hist and self._hist[-1][0] >= t1:
+                self._hist.pop()
+            self._out_m = g.d0
             return
-        self._settle = None
-        v1 = _slope([t for t, _ in samples], [d for _, d in samples])
-        if v1 is None:
-            return
-        self.offset_m += 0.5 * (v1 - v0) * T
-        self.var_gaps += -self._model_var(T, 0.0) + self._model_var(T, v1 - v0) / 4.0
+        T = t1 - g.t0
+        corrected = self._settled_travel(g, T, v1)
+        correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
+        self.offset_m += correction
+        self._out_m += correction
+        self._hist = deque((t, d + correction) if t >= t1 else (t, d) for t, d in self._hist)
+        dv = v1 - (g.v0 if g.v0 is not None else v1)
+        self.var_gaps += self._model_var(T, dv, g.v0 if g.v0 is not None else 0.0) / 4.0
+        self._gap = None
+
+    def _settled_travel(self, g: _Gap, T: float, v1: float) -> float:
+        """The gap's distance once the speed after it is known."""
+        if g.v0 is None:                      # a run that started blind: the speed after, constant
+            return v1 * T
+        stop = self._stops(g, T)
+        if stop is not None and abs(v1) > self.p.speed_sigma_m_s:
+            # braked to a stop inside the gap, then started again: at the same rate, up to v1
+            a = abs(g.a0)
+            ramp = min(abs(v1) / a, T - stop)
+            return self._travel(g, T) + math.copysign(0.5 * a * ramp * ramp, v1)
+        if stop is not None:
+            return self._travel(g, T)         # stopped, and still stopped
+        return 0.5 * (g.v0 + v1) * T          # a constant acceleration over the gap
 
 
 def _slope(ts, ds) -> float | None:
@@ -168,3 +244,9 @@ def _slope(ts, ds) -> float | None:
     mt, md = sum(ts) / n, sum(ds) / n
     den = sum((t - mt) ** 2 for t in ts)
     return None if den <= 0 else sum((t - mt) * (d - md) for t, d in zip(ts, ds)) / den
+
+
+def _quadratic(ts, ds):
+    """Least-squares d = c + v t + a2 t^2 (only when a gap opens: a few dozen points)."""
+    c, v, a2 = np.polynomial.polynomial.polyfit(ts, ds, 2)
+    return float(c), float(v), float(a2)

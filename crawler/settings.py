@@ -12,10 +12,13 @@ import math
 import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 from .errors import BadConfig
 from .geometry import METHODS, Mount
+
+if TYPE_CHECKING:
+    from .wheel.settings import WheelSettings
 
 # (section, key) of a key that no longer exists -> what to write instead
 RENAMED = {
@@ -256,7 +259,7 @@ class Settings:
     state: StateSettings = field(default_factory=StateSettings)
     inspection: InspectionSettings = field(default_factory=InspectionSettings)
     ros2: Ros2Settings = field(default_factory=Ros2Settings)
-    wheel: "WheelSettings" = field(default_factory=lambda: _wheel_settings({}, "crawler1"))
+    wheel: WheelSettings = field(default_factory=lambda: _wheel_settings({}, "crawler1"))
 
     def __post_init__(self):
         _check_field(self, "", "name", self.name, "str")

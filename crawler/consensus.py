@@ -1,0 +1,81 @@
+"""The statistics the odometer reduces its tracks with. Pure: no I/O, no state beyond a window.
+
+robust_step: one step from many per-feature displacements (median/MAD, then the inliers' mean).
+SpeedFilter: a least-squares speed over time, not frames, so dropped frames add noise, never bias.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+MAD_TO_SIGMA = 1.4826                  # a normal distribution's sigma per median absolute deviation
+LATERAL_AXIAL = np.array([[-1.0], [1.0]])   # moved = keyframe wall - wall, signs per row (lateral, axial)
+
+
+def robust_step(values: np.ndarray, floor: float, k: float):
+    """Median/MAD consensus per row of values (rows: axial, lateral): (means, inlier mask, spreads).
+
+    A feature is an inlier when it agrees with the median in every row.
+    """
+    mid = values.shape[1] // 2          # the upper median: partitioning beats np.median's overhead
+    part = values.copy()
+    part.partition(mid, axis=1)
+    med = part[:, mid:mid + 1]
+    dev = np.abs(values - med)
+    part = dev.copy()
+    part.partition(mid, axis=1)
+    sigma = part[:, mid] * MAD_TO_SIGMA
+    gate = np.maximum(sigma * k, floor)
+    inl = np.logical_and.reduce(dev <= gate[:, None], axis=0)
+    n_in = np.count_nonzero(inl)
+    if not n_in:
+        return med.ravel(), inl, sigma
+    return values.dot(inl.astype(values.dtype)) / n_in, inl, sigma
+
+
+def median(values) -> float:
+    v = sorted(values)
+    return v[len(v) // 2]
+
+
+class SpeedFilter:
+    """Least-squares slope of distance over the last window of seconds.
+
+    Works on timestamps, not frame counts, so dropped frames change nothing but the noise. Running
+    sums keep it to a few float operations per frame.
+    """
+
+    def __init__(self, window_s: float):
+        self.window_s = window_s
+        self.reset()
+
+    def reset(self):
+        self._hist: deque[tuple[float, float]] = deque()
+        self._t0 = None
+        self._n = self._st = self._sd = self._stt = self._std = 0.0
+
+    def _add(self, t, d, sign):
+        self._n += sign
+        self._st += sign * t
+        self._sd += sign * d
+        self._stt += sign * t * t
+        self._std += sign * t * d
+
+    def update(self, t: float, d: float) -> float | None:
+        if self._t0 is None:
+            self._t0 = t
+        t -= self._t0               # small numbers: the sums stay exact enough for hours
+        self._hist.append((t, d))
+        self._add(t, d, 1)
+        while self._hist[0][0] < t - self.window_s:
+            self._add(*self._hist.popleft(), -1)
+        return self.value()
+
+    def value(self) -> float | None:
+        n = self._n
+        den = n * self._stt - self._st * self._st
+        if n < 2 or den <= 1e-12 * max(1.0, n * self._stt):
+            return None
+        return (n * self._std - self._st * self._sd) / den

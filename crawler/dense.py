@@ -1,0 +1,104 @@
+"""A coarse, dense measurement for a wall with too little texture for features. Pure: no I/O.
+
+A wet or smooth wall still has large-scale shading that moves with it; what does not move with it
+is the LED's specular highlight, the lighting's fall-off, and whatever the video encoder copied
+unchanged from the last frame. Those dominate a frame of such a wall, so a plain phase correlation
+finds them and reads "no motion". Dividing each frame by a running mean of the recent frames (what
+stays put in the image) leaves only what moves with the wall; a phase correlation of two such
+frames at quarter resolution then finds the wall's shift. It is a lower-quality measurement than
+tracked features (one shift for the whole region, converted at the region's centre), used only
+where features cannot be had, and only once the running mean has seen enough frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class DenseParams:
+    level: int = 2                    # quarter resolution: the shading is coarse, and it is cheap
+    memory: float = 0.1               # the running mean's weight of each new frame (~10 frames)
+    warmup: int = 8                   # frames before the running mean has lost the moving texture
+    blur: float = 1.0                 # Gaussian sigma (pixels at that level) before correlating
+    min_response: float = 0.3         # weaker phase-correlation peaks are not a measurement
+    noise_px: float = 0.4             # 1-sigma error of one shift, full-resolution pixels
+    rel_error: float = 0.02           # ...and of its conversion to metres (one shift for a whole region)
+    dark_share: float = 0.2           # a region darker than this share of the lit wall: nothing to see
+    min_changed: float = 0.2          # fewer pixels changed since the last frame: the encoder froze it
+    confirm: int = 3                  # shifts in a row that must agree before any is believed...
+    agree: float = 0.2                # ...within this share of each other (or a pixel)
+
+
+class DenseShift:
+    """Frame-to-frame wall shift of an untextured region, in full-resolution pixels."""
+
+    def __init__(self, shape: tuple[int, int], params: DenseParams | None = None):
+        self.p = params or DenseParams()
+        h, w = shape
+        f = 2 ** self.p.level
+        self._size = (-(-w // f), -(-h // f))
+        self._scale = float(f)
+        self._window = cv2.createHanningWindow(self._size, cv2.CV_32F)
+        self.reset()
+
+    def reset(self):
+        self._mean = None             # the running mean of the recent frames: what stays put
+        self._prev = None             # the last flat-fielded frame
+        self._prev_small = None       # ...and the last frame as it came, at that level
+        self._frames = 0
+        self._pending: list = []      # shifts found but not yet confirmed by the next ones
+        self._last_dv = None          # the last shift handed out, once confirmed
+
+    def shift(self, roi: np.ndarray):
+        """((du, dv), response): the shift since the last one returned (the sum of the confirmed
+        frame-to-frame shifts), or None while warming up, unsure or waiting for confirmation."""
+        found = self._frame_shift(roi)
+        if found is None:
+            self._pending, self._last_dv = [], None
+            return None
+        if self._last_dv is not None and self._agree([self._last_dv, found[0][1]]):
+            self._last_dv = found[0][1]               # confirmed before, and it goes on
+            return found
+        self._last_dv = None
+        self._pending.append(found)
+        recent = [dv for (_, dv), _ in self._pending[-self.p.confirm:]]
+        if len(recent) < self.p.confirm or not self._agree(recent):
+            self._pending = self._pending[-(self.p.confirm - 1):]
+            return None
+        du = sum(s[0] for s, _ in self._pending)
+        dv = sum(s[1] for s, _ in self._pending)
+        response = min(r for _, r in self._pending)
+        self._pending, self._last_dv = [], recent[-1]
+        return (du, dv), response
+
+    def _agree(self, dvs) -> bool:
+        lo, hi = min(dvs), max(dvs)
+        return hi - lo <= max(1.0, self.p.agree * max(abs(lo), abs(hi)))
+
+    def _frame_shift(self, roi: np.ndarray):
+        small8 = cv2.resize(roi, self._size, interpolation=cv2.INTER_AREA)
+        # a low-contrast wall moving slowly is copied unchanged from frame to frame by the video
+        # encoder: such a frame says nothing about the motion (not even that there was none)
+        frozen = (self._prev_small is not None and np.count_nonzero(cv2.absdiff(small8, self._prev_small) > 1)
+                  < self.p.min_changed * small8.size)
+        self._prev_small = small8
+        small = small8.astype(np.float32)
+        if self._mean is None:
+            self._mean = small.copy()
+        else:                         # a plain average at first: the first frame must not linger in it
+            a = max(self.p.memory, 1.0 / (self._frames + 1))
+            cv2.addWeighted(self._mean, 1.0 - a, small, a, 0.0, dst=self._mean)
+        flat = cv2.GaussianBlur(small / (self._mean + 1.0), (0, 0), self.p.blur)
+        flat -= float(flat.mean())
+        prev, self._prev = self._prev, flat
+        self._frames += 1
+        if prev is None or self._frames <= self.p.warmup or frozen:
+            return None
+        (du, dv), response = cv2.phaseCorrelate(prev, flat, self._window)
+        if response < self.p.min_response:
+            return None
+        return (du * self._scale, dv * self._scale), float(response)

@@ -1,0 +1,44 @@
+"""One frame's result, as the odometer gives it and the distance chain completes it."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass
+class Estimate:
+    """One frame's result. Distances are metres since the run start; quality in [0, 1]."""
+
+    frame: int
+    t_s: float
+    distance_m: float
+    speed_m_s: float | None
+    lateral_m: float
+    roll_deg: float | None
+    tracking: bool
+    quality: float
+    tracks: int
+    inliers: int
+    spread_mm: float | None
+    keyframe: bool
+    continuous: bool = True           # False: a fresh start, the motion since the last tracked frame unknown
+    # filled in after the odometer (crawler/distance.py): the published distance's uncertainty and origin
+    sigma_m: float | None = None
+    bridged: bool = False
+    source: str = "vision"
+    slip: bool = False
+    wheel_distance_m: float | None = None
+    wheel_scale: float | None = None
+    gap_s: float = 0.0
+
+    def as_dict(self) -> dict:
+        d = dict(self.__dict__)
+        for k in ("distance_m", "lateral_m"):
+            d[k] = round(d[k], 6)
+        for k in ("speed_m_s", "roll_deg", "spread_mm", "sigma_m", "wheel_distance_m", "wheel_scale"):
+            d[k] = None if d[k] is None or not math.isfinite(d[k]) else round(d[k], 6)
+        d["gap_s"] = round(d["gap_s"], 4)
+        d["t_s"] = round(d["t_s"], 6)
+        d["quality"] = round(d["quality"], 3)
+        return d

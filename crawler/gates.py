@@ -1,0 +1,97 @@
+"""What a frame must pass before the odometer believes it. Pure: no I/O.
+
+- Texture: a frame with too little fine texture for features (an LED blackout, a wet or smooth wall,
+  a frame the encoder left flat) is not tracked at all; features found on it would be noise or
+  texture that does not move with the wall.
+- Light: a frame much darker than the lit wall has nothing to see, not even for the dense shift.
+- Agreement: tracks that disagree far more than lately, both in metres and per metre of step, mean
+  a corrupt frame (model errors grow with the step; noise does not), until the new level has held.
+- Motion: a measured speed that changed faster than any crawler can since the last good frame
+  (texture that stays put in the image while the wall moves: a specular highlight, blocks the encoder
+  copied) is refused, until it has said the same long enough to be a real stop (a collision).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import cv2
+
+from .consensus import median
+
+
+class FrameGates:
+    def __init__(self, params):
+        self.p = params               # OdometryParams (and its DenseParams)
+        self.texture_ref = None       # fine texture of recent measured frames (flow.texture_energy)
+        self.light_ref = None         # ...and their mean grey level
+        self.v_ref = None             # the speed measured at the last good frame (m/s), None: not yet
+        self.t_ref = 0.0              # ...and when
+        self._refused_since = None    # the first of a run of refused measurements
+
+    def textured(self, energy: float) -> bool:
+        ref = self.texture_ref
+        return energy >= self.p.min_texture_dn and (ref is None or energy >= self.p.min_texture_share * ref)
+
+    def dark(self, roi) -> bool:
+        light = self.light_ref
+        return light is not None and _grey(roi) < self.p.dense.dark_share * light
+
+    def remember(self, roi, energy: float):
+        """A measured frame: what the lit, textured wall looks like lately."""
+        a, tex, light = self.p.texture_memory, self.texture_ref, self.light_ref
+        grey = _grey(roi)
+        self.texture_ref = energy if tex is None else tex + a * (energy - tex)
+        self.light_ref = grey if light is None else light + a * (grey - light)
+
+    def measured(self, v: float, t_s: float):
+        """The speed of a frame that was believed."""
+        self.v_ref, self.t_ref = v, t_s
+
+    def plausible(self, v: float, t_s: float) -> bool:
+        """Could the crawler have gone from v_ref (at t_ref) to v by t_s?"""
+        p = self.p
+        if self.v_ref is None:
+            return True
+        if abs(v - self.v_ref) <= p.max_accel_m_s2 * (t_s - self.t_ref) + p.speed_tol_m_s:
+            self._refused_since = None
+            return True
+        if self._refused_since is None:
+            self._refused_since = t_s
+        if t_s - self._refused_since >= p.max_refusal_s:
+            self._refused_since = None
+            return True
+        return False
+
+
+class SpreadGate:
+    """Recent track disagreement, in metres and per unit of step, to tell a corrupt frame."""
+
+    def __init__(self, params, m_per_px: float):
+        self.p = params
+        self.m_per_px = m_per_px
+        self._spreads: deque[float] = deque(maxlen=15)
+        self._sigmas: deque[float] = deque(maxlen=15)
+        self._refusals = 0
+
+    def _moving(self, step: float) -> bool:
+        return abs(step) > self.p.moving_px * self.m_per_px     # the ratio means nothing at a standstill
+
+    def calm(self, step: float, sigma: float, ratio: float) -> bool:
+        p = self.p
+        jump = (self._moving(step) and len(self._spreads) >= 5 and len(self._sigmas) >= 5
+                and ratio > p.spread_jump * median(self._spreads)
+                and sigma > p.spread_jump * median(self._sigmas))
+        calm = (not jump or sigma <= p.spread_floor_px * self.m_per_px
+                or self._refusals >= p.max_spread_refusals)
+        self._refusals = 0 if calm else self._refusals + 1
+        return calm
+
+    def accepted(self, step: float, sigma: float, ratio: float):
+        self._sigmas.append(sigma)
+        if self._moving(step):
+            self._spreads.append(ratio)
+
+
+def _grey(roi) -> float:
+    return float(cv2.mean(roi[::8, ::8])[0])

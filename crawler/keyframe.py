@@ -1,0 +1,46 @@
+"""A keyframe: the features every later frame is measured against, with their wall positions and a
+per-feature model of how they move in the image. Pure: no I/O.
+
+Each feature's image motion per metre of step comes from the exact projection, to second order
+along the axis and first order across it, once per keyframe: the exact inverse projection is too
+dear for every frame, and a guess need not be exact (LK finishes the job).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+PROBE_STEP_PX = 40.0     # the model's finite-difference step, in pixels at the ROI centre: large
+                         # enough to see the curvature of tilted rows, small against the ROI
+
+
+class Keyframe:
+    """Features of one keyframe: pixel positions in the ROI, wall positions, row times."""
+
+    def __init__(self, img, pts, wall, row_t, t_s, distance, lateral, predict):
+        self.img = img
+        self.pts = pts            # (N, 2) float32, ROI pixels
+        self.wall = wall          # (N, 2) metres (s, y)
+        self.row_t = row_t        # (N,) seconds after the frame's top row
+        self.predict = predict    # (jy, ky, js): pixel motion per metre of axial/lateral step
+        # the same as one (N, 2, 3) matrix: motion = model . (step, step^2, lateral)
+        self.model = np.stack([predict[0], 0.5 * predict[1], predict[2]], axis=-1).reshape(-1, 3)
+        self.t_s = t_s
+        self.distance = distance
+        self.lateral = lateral
+        self.n0 = len(pts)
+
+    @property
+    def rows_per_m(self) -> float:
+        """Mean image rows the features move per metre of step (the sign says the entry side)."""
+        return float(self.predict[0][:, 1].sum()) / self.n0
+
+
+def motion_model(px: np.ndarray, wall: np.ndarray, to_pixels, m_per_px: float):
+    """(per metre of step, per square metre, per metre lateral) pixel motion of each feature."""
+    d = PROBE_STEP_PX * m_per_px
+    n = len(wall)
+    probes = to_pixels(np.concatenate([wall + [0.0, -d], wall + [0.0, d], wall + [d, 0.0]]))
+    ahead, behind, aside = probes[:n], probes[n:2 * n], probes[2 * n:]
+    predict = ((ahead - behind) / (2 * d), (ahead + behind - 2 * px) / (d * d), (aside - px) / d)
+    return [a.astype(np.float32) for a in predict]
