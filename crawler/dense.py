@@ -28,7 +28,7 @@ class DenseParams:
     noise_px: float = 0.4             # 1-sigma error of one shift, full-resolution pixels
     rel_error: float = 0.02           # ...and of its conversion to metres (one shift for a whole region)
     dark_share: float = 0.2           # a region darker than this share of the lit wall: nothing to see
-    min_changed: float = 0.2          # fewer pixels changed since the last frame: the encoder froze it
+    min_changed: float = 0.2          # fewer pixels changed at all since the last frame: the encoder froze it
     confirm: int = 3                  # shifts in a row that must agree before any is believed...
     agree: float = 0.2                # ...within this share of each other (or a pixel)
 
@@ -81,10 +81,11 @@ class DenseShift:
 
     def _frame_shift(self, roi: np.ndarray):
         small8 = cv2.resize(roi, self._size, interpolation=cv2.INTER_AREA)
-        # a low-contrast wall moving slowly is copied unchanged from frame to frame by the video
-        # encoder: such a frame says nothing about the motion (not even that there was none)
-        frozen = (self._prev_small is not None and np.count_nonzero(cv2.absdiff(small8, self._prev_small) > 1)
-                  < self.p.min_changed * small8.size)
+        # a low-contrast wall is copied unchanged from frame to frame by the video encoder: such a
+        # frame says nothing about the motion (not even that there was none). A faint wall that
+        # moves still changes most pixels a little (a copied block changes none)
+        frozen = (self._prev_small is not None
+                  and cv2.countNonZero(cv2.absdiff(small8, self._prev_small)) < self.p.min_changed * small8.size)
         self._prev_small = small8
         small = small8.astype(np.float32)
         if self._mean is None:

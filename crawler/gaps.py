@@ -13,8 +13,12 @@ afresh (its distance does not). This stage turns that into a distance that never
   to the speed after. A measurement too short to give a speed does not close the gap: if the wall
   is lost again at once, the gap simply goes on from where it began;
 - every estimate carries `sigma_m`, its 1-sigma uncertainty: the measurement's own (closed keyframe
-  steps: the spread of the tracks over their number, and a scale term) and, for every bridged gap,
-  the motion model's (the speed's error and an acceleration it could not see).
+  steps: the spread of the tracks over their number, and a scale term), the frame's jitter (what
+  moves all tracks at once and so is not in their spread: the camera pitching on a bouncing car,
+  compression; it does not add up over keyframes, as each frame's pose error cancels between the
+  step that ends there and the one that starts there, so it is estimated from the measured distance
+  itself, as its scatter about a straight line), and, for every bridged gap, the motion model's
+  (the speed's error and the speed changes it could not see, as a random walk).
 
 Pure: no I/O, no clock; fed one odometer estimate per frame.
 """
@@ -32,14 +36,17 @@ import numpy as np
 class BridgeParams:
     scale_sigma: float = 2e-3         # relative error of one keyframe step (pose jitter, bounce, geometry)
     step_floor_m: float = 2e-5        # a keyframe step is never known better than this (LK, compression)
-    accel_sigma_m_s2: float = 0.3     # 1-sigma acceleration the model cannot see over a gap
+    speed_diffusion: float = 0.02     # m^2/s^3: how fast an unseen speed change grows (a random walk)
     speed_sigma_m_s: float = 0.005    # 1-sigma error of a measured speed (0.25 s least squares)
     unknown_speed_m_s: float = 0.5    # 1-sigma speed of a crawler never measured yet (a run starting blind)
     max_accel_m_s2: float = 1.0       # the model never extrapolates a stronger acceleration
     history_s: float = 0.3            # speed and acceleration before a gap: fitted over this much
+    min_history_s: float = 0.1        # ...and a speed measured over less than this is no speed at all
     min_accel_m_s2: float = 0.15      # a fitted acceleration below this is noise: constant speed
     settle_s: float = 0.25            # after a fresh start, measure the speed this long before settling
     max_bridge_s: float = 30.0        # beyond this the model is a guess: the speed fades to 0 over it
+    pose_sigma_m: float = 0.0         # the camera's pitching on the car, as wall metres (measurement.py)
+    jitter_memory: float = 0.05       # weight of each frame in the running jitter estimate (~1 s at 30 fps)
 
 
 @dataclass
@@ -75,6 +82,9 @@ class GapBridge:
         self._settling = None         # (t_start, vision distance samples) while the gap settles
         self._gap_prev_var = 0.0
         self._out_m = distance_m
+        self._jitter_var = 0.0        # the frame's pose/compression jitter (variance, m^2)
+        self._jitter_n = 0
+        self._last2: list = []        # the last two measured (t, vision distance), for that
 
     @property
     def sigma_m(self) -> float:
@@ -99,8 +109,8 @@ class GapBridge:
     def _motion_before(self, t0: float):
         """(speed, acceleration) at t0 from the recent measured frames (None, 0: never measured)."""
         h = [(t, d) for t, d in self._hist if t >= t0 - self.p.history_s]
-        if len(h) < 2:
-            return None, 0.0
+        if len(h) < 2 or h[-1][0] - h[0][0] < self.p.min_history_s:
+            return None, 0.0          # one frame interval of a video that may be lying (a bad start)
         ts, ds = [t - t0 for t, _ in h], [d for _, d in h]
         if len(h) < 5 or ts[-1] - ts[0] < 0.5 * self.p.history_s:
             return _slope(ts, ds), 0.0
@@ -127,17 +137,23 @@ class GapBridge:
             return None
         return -g.v0 / g.a0
 
-    def _model_var(self, T: float, dv: float, v0: float | None = 0.0) -> float:
-        """Variance of a gap of T bridged at a measured speed: the speed's error, and an acceleration
-        the model does not see (larger when the speed before and after differ by dv). Without any
-        measured speed (a run that starts blind) the speed itself is unknown."""
-        accel = math.hypot(self.p.accel_sigma_m_s2, dv / max(T, 1e-3))
-        sv = self.p.speed_sigma_m_s if v0 is not None else self.p.unknown_speed_m_s
-        return (sv * T) ** 2 + (0.5 * accel * T * T) ** 2
+    def _model_var(self, T: float, v0: float | None, settled: bool = False) -> float:
+        """Variance of a gap of T carried by the model. The speed wanders like a random walk the
+        camera did not see (variance speed_diffusion * t): its integral over the gap has variance
+        q T^3 / 3 with only the speed before known, q T^3 / 12 once the speed after settles it (a
+        Brownian bridge). Add the measured speeds' own errors, or, for a run that starts blind,
+        no speed at all."""
+        q, sv = self.p.speed_diffusion, self.p.speed_sigma_m_s
+        if v0 is None:
+            sv = self.p.unknown_speed_m_s
+        if settled:
+            return 0.5 * (sv * T) ** 2 + q * T ** 3 / 12.0
+        return (sv * T) ** 2 + q * T ** 3 / 3.0
 
     # -- blind ----------------------------------------------------------------------------------------
 
     def _blind(self, est) -> Bridged:
+        self._last2 = []
         if self._settling is not None:    # the measurement since the gap was too short: it goes on
             self._settle_or_reopen()
         if self._gap is None:
@@ -148,11 +164,12 @@ class GapBridge:
             self._gap_prev_var = 0.0
         g = self._gap
         T = est.t_s - g.t0
-        var = self._model_var(T, 0.0, g.v0)
+        var = self._model_var(T, g.v0)
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
         out = g.d0 + self._travel(g, T)
-        return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var), True, step, T)
+        jitter = self._jitter_var + self.p.pose_sigma_m ** 2
+        return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + jitter), True, step, T)
 
     # -- measured -------------------------------------------------------------------------------------
 
@@ -169,6 +186,7 @@ class GapBridge:
                 self._settle_or_reopen()
         if self._kf_vision is None:
             self._kf_vision = est.distance_m
+        self._track_jitter(est)
         step_var = self._step_var(est)
         if est.keyframe:              # the keyframe's step is closed: its error is carried from now on
             self.var_meas += step_var
@@ -177,8 +195,35 @@ class GapBridge:
         self._hist.append((est.t_s, self._out_m))
         while self._hist and self._hist[0][0] < est.t_s - 2 * self.p.history_s:
             self._hist.popleft()
-        total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var)
-        return Bridged(self._out_m, math.sqrt(total), False, self._frame_noise(est), gap_T)
+        jitter = self._jitter_var + self.p.pose_sigma_m ** 2
+        total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var) + jitter
+        if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
+            g = self._gap
+            total += self._model_var(self._settling[0] - g.t0, g.v0)
+        # for the fusion: the white part only (the pose term is slow, a filter must not average it)
+        noise = math.hypot(self._frame_noise(est), math.sqrt(self._jitter_var))
+        return Bridged(self._out_m, math.sqrt(total), False, noise, gap_T)
+
+    def _track_jitter(self, est):
+        """The measured distance's scatter about a straight line over three frames in a row: the
+        residual of the third against the line through the first two has 1 + (1 + r)^2 + r^2 times
+        the frame's variance (r: the ratio of the intervals). Accelerations count too, which errs
+        on the safe side."""
+        if not est.continuous:
+            self._last2 = []
+        self._last2.append((est.t_s, est.distance_m))
+        if len(self._last2) < 3:
+            return
+        (t0, d0), (t1, d1), (t2, d2) = self._last2[-3:]
+        del self._last2[0]
+        if t1 <= t0 or t2 <= t1:
+            return
+        r = (t2 - t1) / (t1 - t0)
+        resid2 = (d2 - d1 - (d1 - d0) * r) ** 2 / (1 + (1 + r) ** 2 + r * r)
+        v, self._jitter_n = self._jitter_var, self._jitter_n + 1
+        resid2 = min(resid2, 9 * v) if v > 0 else resid2    # one bad frame does not set the level
+        a = max(self.p.jitter_memory, 1.0 / self._jitter_n)  # a plain mean until the memory is full
+        self._jitter_var = v + a * (resid2 - v)
 
     def _frame_noise(self, est) -> float:
         spread = (est.spread_mm or 0.0) / 1000.0
@@ -218,8 +263,10 @@ class GapBridge:
         self.offset_m += correction
         self._out_m += correction
         self._hist = deque((t, d + correction) if t >= t1 else (t, d) for t, d in self._hist)
-        dv = v1 - (g.v0 if g.v0 is not None else v1)
-        self.var_gaps += self._model_var(T, dv, g.v0 if g.v0 is not None else 0.0) / 4.0
+        # both ends known: the trapezoid's residual; only the speed after, or a stop the model
+        # guessed inside the gap: as unsure as while blind
+        both = g.v0 is not None and self._stops(g, T) is None
+        self.var_gaps += self._model_var(T, 0.0 if g.v0 is None else g.v0, settled=both)
         self._gap = None
 
     def _settled_travel(self, g: _Gap, T: float, v1: float) -> float:

@@ -13,6 +13,7 @@ import math
 from .calibration import load_calibration
 from .errors import BadConfig
 from .flow import FlowParams
+from .gaps import BridgeParams
 from .geometry import Camera, check_distortion, check_view, make_projection
 from .odometry import Odometer, OdometryParams
 from .settings import CameraSettings, OdometrySettings, Settings
@@ -76,6 +77,13 @@ def build_odometer(settings: Settings, camera: Camera, default_roi) -> Odometer:
     check_geometry(settings, camera, roi)
     projection = make_projection(settings.odometry.method, settings.mount.mount())
     return Odometer(camera, projection, roi, odometry_params(settings.odometry))
+
+
+def bridge_params(settings: Settings, odometer: Odometer) -> BridgeParams:
+    """The bridge's noise model for this mount: a pitch of the camera by pitch_jitter_deg moves
+    the image by fy * pitch pixels, which the odometer reads as that many pixels of wall."""
+    pitch = math.radians(settings.odometry.pitch_jitter_deg)
+    return BridgeParams(pose_sigma_m=odometer.m_per_px * odometer.camera.fy * pitch)
 
 
 def describe(settings: Settings, camera: Camera, default_roi) -> dict:

@@ -179,16 +179,23 @@ class Odometer:
         return self.projection.to_wall(self.camera.normalise(px))
 
     def _mean_jacobian(self) -> tuple:
-        """The global-shift Jacobian averaged over the ROI: a dense shift moves every row at once,
-        and the wall metres per pixel change from row to row (tilt, perspective)."""
+        """The global-shift Jacobian for the dense shift. A phase correlation of two windowed
+        frames reports the window-weighted (squared: both frames carry it) mean of the local
+        pixel shifts, and the wall metres per pixel change over the ROI (curvature, tilt): so the
+        pixels per metre are averaged with those weights, and inverted."""
         x, y, w, h = self.roi
-        u, v = np.meshgrid(np.linspace(x, x + w - 1, 9), np.linspace(y, y + h - 1, 9))
+        s = np.linspace(0.0, 1.0, 11)[1:-1]
+        u, v = np.meshgrid(x + s * (w - 1), y + s * (h - 1))
+        weight = (np.outer(np.sin(np.pi * s) ** 2, np.sin(np.pi * s) ** 2) ** 2).ravel()  # Hanning^2
         c = np.column_stack([u.ravel(), v.ravel()])
         dv = self._wall(c + [0, 0.5]) - self._wall(c + [0, -0.5])
         du = self._wall(c + [0.5, 0]) - self._wall(c + [-0.5, 0])
-        ok = np.all(np.isfinite(dv) & np.isfinite(du), axis=1)
-        dv, du = dv[ok].mean(axis=0), du[ok].mean(axis=0)
-        return -float(dv[1]), -float(du[1]), float(dv[0]), float(du[0])
+        ok = np.all(np.isfinite(dv) & np.isfinite(du), axis=1) & (np.abs(dv[:, 1]) > 0) & (np.abs(du[:, 0]) > 0)
+        wt = weight[ok] / weight[ok].sum()
+        dv, du = dv[ok], du[ok]
+        jyv = 1.0 / float(wt @ (1.0 / -dv[:, 1]))      # axial metres per image row
+        jsu = 1.0 / float(wt @ (1.0 / du[:, 0]))       # lateral metres per image column
+        return jyv, -float(wt @ du[:, 1]), float(wt @ dv[:, 0]), jsu
 
     def _pixels(self, wall: np.ndarray) -> np.ndarray:
         return self.camera.to_pixels(self.projection.to_image(wall))

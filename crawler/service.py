@@ -28,7 +28,7 @@ from .inspection import Inspection
 from .leds import AutoBrightness, BrightnessLoop, Leds, NoLeds, pwm_exposure_us
 from .commands import CommandQueue
 from .link import ZenohLink, ZenohOutput
-from .measurement import build_odometer, describe, recording_camera, thesis_roi
+from .measurement import bridge_params, build_odometer, describe, recording_camera, thesis_roi
 from .outputs import Annotator, JsonlLog, Progress
 from .sdnotify import Notifier, WatchdogOutput
 from .settings import Settings
@@ -133,7 +133,8 @@ class Service:
     def _chain(self, resume: dict | None) -> DistanceChain:
         """Bridging and, with a wheel, the fusion; resumed from the checkpoint's sigma and wheel state."""
         resume = resume or {}
-        bridge = GapBridge(distance_m=resume.get("distance_m", 0.0), sigma_m=resume.get("sigma_m") or 0.0)
+        bridge = GapBridge(bridge_params(self.settings, self.odometer), distance_m=resume.get("distance_m", 0.0),
+                           sigma_m=resume.get("sigma_m") or 0.0)
         w = self.settings.wheel
         if not w.enabled:
             return DistanceChain(bridge)

@@ -82,8 +82,10 @@ def test_a_featureless_patch_is_bridged_and_said_so(render_run, crawlerd, tmp_pa
     truth = read_ground_truth(run["csv"])
     err = [abs(r["distance_m"] - truth["distance_m"][r["frame"]]) for r in rows]
     assert max(err) < 0.01 and err[-1] < 0.005                            # the gap's distance is not lost
-    sigma = [r["sigma_m"] for r in lost]
-    assert sigma == sorted(sigma) and sigma[-1] > 5 * rows[0]["sigma_m"]  # sigma grows with bridged time
+    for a, b in zip(rows, rows[1:]):       # sigma grows with bridged time (a measurement may settle it)
+        if a["bridged"] and b["bridged"]:
+            assert b["sigma_m"] > a["sigma_m"]
+    assert max(r["sigma_m"] for r in lost) > 5 * rows[0]["sigma_m"]
     assert all(e <= 2 * r["sigma_m"] for e, r in zip(err, rows) if r["bridged"])
     assert rows[-1]["tracking"] and not rows[-1]["bridged"]
 

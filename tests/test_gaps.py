@@ -1,0 +1,127 @@
+"""The gap bridge on exactly known motion: what it carries while blind, how it settles, its sigma."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from crawler.gaps import BridgeParams, GapBridge
+
+FPS = 30.0
+
+
+def est(t, d, tracking=True, continuous=True, keyframe=False):
+    return SimpleNamespace(t_s=t, distance_m=d, tracking=tracking, continuous=continuous, keyframe=keyframe,
+                           spread_mm=0.02, inliers=40, speed_m_s=None)
+
+
+def drive(truth, blind, end_s, restart_fresh=True, bridge=None):
+    """Feed the bridge an odometer that measures truth(t) except inside the blind (t0, t1) windows;
+    after each window it starts afresh (its distance holds what it had: the gap's motion unknown).
+    Returns (times, published, sigma, bridged) arrays."""
+    bridge = bridge or GapBridge()
+    vision, last_truth, was_blind = 0.0, 0.0, False
+    out = []
+    for t in np.arange(0, end_s, 1 / FPS):
+        if any(a <= t < b for a, b in blind):
+            was_blind = True
+            b = bridge.update(est(t, vision, tracking=False))
+        else:
+            fresh = was_blind and restart_fresh
+            if fresh:
+                last_truth = truth(t)                 # the fresh start counts from here
+            vision += truth(t) - last_truth           # (across the gap too, when not fresh)
+            last_truth, was_blind = truth(t), False
+            b = bridge.update(est(t, vision, continuous=not fresh, keyframe=fresh or round(t * FPS) % 10 == 0))
+        out.append((t, b.distance_m, b.sigma_m, b.bridged))
+    return [np.array(c) for c in zip(*out)]
+
+
+def test_a_blind_stretch_at_constant_speed_is_carried_and_flagged():
+    t, d, s, br = drive(lambda t: 0.3 * t, [(2.0, 3.0)], 5.0)
+    inside = (t >= 2.0) & (t < 3.0)
+    assert br[inside].all() and not br[~inside].any()
+    assert np.abs(d - 0.3 * t).max() < 1e-3              # never held: carried at the speed before
+    assert np.all(np.diff(s[inside]) > 0)                # sigma grows with the bridged time
+    assert s[inside][-1] > 10 * s[t < 2.0][-1]
+
+
+def test_a_fresh_start_after_a_gap_is_settled_by_the_trapezoid():
+    # constant acceleration from 0.2 to 0.5 m/s inside a 1 s gap: the model carries 0.2 m/s, the
+    # speed after it settles the gap exactly
+    def truth(t):
+        if t < 2.0:
+            return 0.2 * t
+        if t < 3.0:
+            return 0.4 + 0.2 * (t - 2) + 0.15 * (t - 2) ** 2
+        return 0.75 + 0.5 * (t - 3)
+
+    t, d, s, br = drive(truth, [(2.01, 2.99)], 5.0)     # measured at 2.0 and again at 3.0
+    last_blind = np.searchsorted(t, 3.0) - 1
+    assert d[last_blind] == pytest.approx(0.2 * t[last_blind], abs=1e-3)    # the model's, before it knows
+    after = t > 3.5
+    err = d[after] - np.array([truth(x) for x in t[after]])
+    assert np.abs(err).max() < 2e-3                      # settled: the gap's 0.35 m to 2 mm
+    assert not br[after].any()
+    assert np.all(np.abs(err) <= 2 * s[after])
+
+
+def test_measured_across_the_gap_keeps_the_odometer_distance():
+    truth = lambda t: 0.3 * t + 0.1 * np.sin(t)         # noqa: E731
+    t, d, s, _ = drive(truth, [(2.0, 2.5)], 4.0, restart_fresh=False)
+    after = t >= 2.5
+    assert np.abs(d[after] - np.array([truth(x) for x in t[after]])).max() < 1e-9
+    assert s[after][-1] < 1e-3                           # no model uncertainty added
+
+
+def test_a_crawler_braking_into_a_gap_stops_and_does_not_reverse():
+    def truth(t):                                        # 0.4 m/s, braking at 0.8 m/s^2 from t = 1.5
+        return 0.4 * t if t < 1.5 else 0.6 + 0.4 * min(t - 1.5, 0.5) - 0.4 * min(t - 1.5, 0.5) ** 2
+    t, d, _, br = drive(truth, [(1.8, 3.5)], 3.4)        # still blind at the end
+    inside = t >= 1.8
+    assert np.all(np.diff(d[inside]) >= -1e-9)           # never backwards
+    assert d[-1] == pytest.approx(truth(3.4), abs=0.01)  # stopped where the crawler stopped
+
+
+def test_a_measurement_too_short_for_a_speed_does_not_close_the_gap():
+    p = BridgeParams()
+    bridge = GapBridge(p)
+    for i in range(60):                                  # 2 s at 0.3 m/s
+        bridge.update(est(i / FPS, 0.3 * i / FPS, keyframe=i % 10 == 0))
+    d0 = bridge.update(est(60 / FPS, 0.3 * 60 / FPS)).distance_m
+    for i in range(61, 75):
+        bridge.update(est(i / FPS, d0, tracking=False))
+    # one fresh frame (its own distance meaningless), then blind again
+    bridge.update(est(75 / FPS, 5.0, continuous=False, keyframe=True))
+    b = bridge.update(est(76 / FPS, 5.0, tracking=False))
+    assert b.bridged
+    assert b.distance_m == pytest.approx(d0 + 0.3 * (76 - 60) / FPS, abs=1e-3)
+    assert b.gap_s == pytest.approx(16 / FPS, abs=1e-6)
+
+
+def test_a_run_that_starts_blind_carries_nothing_and_claims_nothing():
+    bridge = GapBridge()
+    b = bridge.update(est(0.0, 0.0, tracking=False))
+    assert b.distance_m == 0.0 and not b.bridged
+
+
+def test_sigma_covers_an_unseen_acceleration_at_two_sigma():
+    # a crawler that changes speed by 0.3 m/s in a second it is not seen (speed_diffusion 0.02:
+    # 0.14 m/s per sqrt(s) at 1 sigma): while blind the error stays inside 2 sigma; 0.6 m/s does not
+    for accel in (-0.3, 0.3):
+        truth = lambda t, a=accel: 0.4 * t + (0.5 * a * (t - 2) ** 2 if t > 2 else 0.0)   # noqa: E731
+        t, d, s, br = drive(truth, [(2.0, 3.0)], 2.99)
+        err = np.abs(d - np.array([truth(x) for x in t]))
+        assert np.all(err[br] <= 2 * s[br] + 1e-6), accel
+    truth = lambda t: 0.4 * t + (0.3 * (t - 2) ** 2 if t > 2 else 0.0)   # noqa: E731
+    t, d, s, br = drive(truth, [(2.0, 3.0)], 2.99)
+    assert abs(d[-1] - truth(t[-1])) > 2 * s[-1]
+
+
+def test_reset_counts_from_the_given_distance_with_no_uncertainty():
+    bridge = GapBridge()
+    drive(lambda t: 0.3 * t, [(1.0, 2.0)], 3.0, bridge=bridge)
+    assert bridge.sigma_m > 0.01                         # the closed gap's uncertainty is carried
+    bridge.reset(12.5)
+    assert bridge.sigma_m == 0.0
+    assert bridge.update(est(3.1, 0.0, tracking=False)).distance_m == 12.5
