@@ -25,6 +25,7 @@ from .errors import BadValue
 from .io import H264Writer
 
 TEXELS_PER_SQUARE = 96
+MARGIN_SQUARES = 0.5                              # white paper around the squares
 BLACK, WHITE, BACKGROUND = 35.0, 215.0, 120.0     # grey levels of the print and the room behind it
 
 
@@ -57,13 +58,16 @@ class Board:
 
 
 def board_texture(board: Board, texels_per_square: int = TEXELS_PER_SQUARE) -> np.ndarray:
-    """The board as printed, float32 grey, one square = texels_per_square texels, top-left square black."""
+    """The board as printed, float32 grey, one square = texels_per_square texels, top-left square black,
+    on paper with a white margin of MARGIN_SQUARES squares (the quiet zone detectors need)."""
     n = texels_per_square
     if board.kind == "checkerboard":
         j, i = np.meshgrid(np.arange(board.cols * n) // n, np.arange(board.rows * n) // n)
         img = np.where((i + j) % 2 == 0, 0, 255).astype(np.uint8)
     else:
         img = _charuco_image(board, n)
+    m = int(MARGIN_SQUARES * n)
+    img = cv2.copyMakeBorder(img, m, m, m, m, cv2.BORDER_CONSTANT, value=255)
     return (BLACK + (WHITE - BLACK) * (img.astype(np.float32) / 255.0)).astype(np.float32)
 
 
@@ -125,8 +129,9 @@ class BoardRenderer:
         c, s = self.camera, self.ss
         in_front = uvw[2] > 1e-12
         w = np.where(in_front, uvw[2], 1.0)
-        mx = np.where(in_front, uvw[0] / w * self.texels_per_m - 0.5, -1e6).astype(np.float32)
-        my = np.where(in_front, uvw[1] / w * self.texels_per_m - 0.5, -1e6).astype(np.float32)
+        off = MARGIN_SQUARES * TEXELS_PER_SQUARE - 0.5           # board origin -> texel centres
+        mx = np.where(in_front, uvw[0] / w * self.texels_per_m + off, -1e6).astype(np.float32)
+        my = np.where(in_front, uvw[1] / w * self.texels_per_m + off, -1e6).astype(np.float32)
         shape = (c.height * s, c.width * s)
         fine = cv2.remap(self.texture, mx.reshape(shape), my.reshape(shape), cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=BACKGROUND)
@@ -158,8 +163,8 @@ def pose_looking_at(board: Board, camera: TargetCamera, u: float, v: float, dist
     return cv2.Rodrigues(R)[0].ravel(), t
 
 
-def fully_in_view(board: Board, camera: TargetCamera, rvec, tvec, margin_px: float = 8.0) -> bool:
-    """All four outer corners of the board inside the frame, `margin_px` from its edges."""
+def fully_in_view(board: Board, camera: TargetCamera, rvec, tvec, margin_px: float = 4.0) -> bool:
+    """All four outer corners of the board's squares inside the frame, `margin_px` from its edges."""
     w, h = board.size_m
     px = camera.project(np.array([[0, 0, 0], [w, 0, 0], [0, h, 0], [w, h, 0]], float), rvec, tvec)
     return bool(((px[:, 0] >= margin_px) & (px[:, 0] <= camera.width - 1 - margin_px)
