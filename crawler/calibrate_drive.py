@@ -76,19 +76,29 @@ class Marks:
     start_time: float | None = None
     end_time: float | None = None
 
+    def __post_init__(self):
+        a, b = self.start_frame, self.end_frame
+        if a is not None and b is not None and b <= a:
+            raise BadConfig(f"--end-frame {b} is not after --start-frame {a}; swap them")
+        a, b = self.start_time, self.end_time
+        if a is not None and b is not None and b <= a:
+            raise BadConfig(f"--end-time {b:g} is not after --start-time {a:g}; swap them")
+
     def last_frame_needed(self) -> int | None:
         """The replay may stop after this many frames (an end given as a frame)."""
         return None if self.end_frame is None else self.end_frame + 1
 
     def pick(self, rows: list[dict]) -> tuple[dict, dict]:
         """The log rows at the two marks; BadConfig if a mark is not in the recording."""
-        last = rows[-1]
-        start = _row_at(rows, self.start_frame, self.start_time, "start") if self._start_given else rows[0]
-        end = _row_at(rows, self.end_frame, self.end_time, "end") if self._end_given else last
-        if end["frame"] <= start["frame"]:
+        end = _row_at(rows, self.end_frame, self.end_time, "end") if self._end_given else rows[-1]
+        if not self._start_given:
+            return rows[0], end
+        a, t = self.start_frame, self.start_time
+        if (a is not None and a >= end["frame"]) or (t is not None and t >= end["t_s"]):
+            mark = f"--start-frame {a}" if a is not None else f"--start-time {t:g}"
             raise BadConfig(f"the end mark (frame {end['frame']}, {end['t_s']:.3f} s) is not after the start "
-                            f"mark (frame {start['frame']}, {start['t_s']:.3f} s); swap them")
-        return start, end
+                            f"mark ({mark}); swap them")
+        return _row_at(rows, a, t, "start"), end
 
     @property
     def _start_given(self) -> bool:
@@ -196,14 +206,13 @@ def fov_correction(settings, replay: DriveReplay, measured: float, known: float)
 
 
 def suggestion(settings) -> tuple[str, str]:
-    """(which correction, why) to apply: the quantity the configuration is less sure of."""
+    """(which correction, why): the quantity the configuration is less sure of."""
     if settings.camera.calibration:
-        return "height", ("the focal length comes from [camera] calibration (measured), so the height is the "
-                          "less certain; if the calibration is old or from another lens, recalibrate it first")
-    return "fov", ("the FOV is a lens's nominal value, often a few percent off (docs/deploy.md), while a height "
-                   "is measured to about a millimetre; if you measured the FOV or calibrated the intrinsics, "
-                   "change the height instead (and if neither was measured, calibrate the intrinsics first: "
-                   "crawlerd calibrate intrinsics)")
+        return "height", ("the focal length comes from [camera] calibration, a measurement; if that file is "
+                          "old or from another lens, recalibrate it instead")
+    return "fov", ("[camera] hfov_deg/vfov_deg are a lens's nominal values, often a few percent off, while a "
+                   "height measured with a rule is good to ~1 mm (0.4 %); better still, calibrate the "
+                   "intrinsics (crawlerd calibrate intrinsics) and then correct the height")
 
 
 def drive_main(args) -> int:
