@@ -12,7 +12,6 @@ from crawler.calibrate_intrinsics import View, coverage, select_views
 from crawler.calibration import load_calibration, write_calibration
 from crawler.errors import BadConfig
 from crawler.geometry import Camera
-from hw_sim import SimConfig, write_run
 from hw_sim.target import Board, TargetCamera, board_poses, write_board_video
 
 # a Pi-like lens with strong barrel distortion: what the recordings are rendered with
@@ -246,3 +245,32 @@ def test_write_calibration_is_atomic_and_reads_back(tmp_path):
     with pytest.raises(ValueError):
         write_calibration(path, bad)                # NaN is refused before anything is replaced
     assert load_calibration(path) == cam and [p.name for p in tmp_path.iterdir()] == ["calib.json"]
+
+
+@pytest.mark.parametrize("spec", ["checkerboard:9x6:25mm", "charuco:8x11:20mm:15mm:DICT_5X5_100"])
+def test_the_printed_page_holds_the_board_at_its_true_size(crawlerd, tmp_path, spec):
+    import cv2
+
+    from crawler.calibrate_board import make_finder
+
+    png = tmp_path / "board.png"
+    rc, _, err = crawlerd("calibrate", "board", "--board", spec, "-o", png, "--dpi", "150")
+    assert rc == 0, err
+    page = cv2.imread(str(png), cv2.IMREAD_GRAYSCALE)
+    board = parse_board(spec)
+    a4 = np.array([210, 297]) / 25.4 * 150
+    turned = a4[::-1] if board.kind == "checkerboard" else a4                   # landscape for a wide board
+    assert np.abs(np.array(page.shape[::-1]) - turned).max() <= 1
+    obj, img = make_finder(board).find(page)
+    assert len(obj) == board.corners[0] * board.corners[1]                      # every corner, numbered
+    a, b = np.argmin(obj[:, 0] + obj[:, 1]), np.argmax(obj[:, 0] + obj[:, 1])   # opposite corners of the grid
+    px_per_m = np.linalg.norm(img[b] - img[a]) / np.linalg.norm(obj[b] - obj[a])
+    assert px_per_m == pytest.approx(150 / 0.0254, rel=0.003)                    # squares of the stated size
+
+    rc, _, err = crawlerd("calibrate", "board", "--board", "charuco:8x11:30mm:22mm", "-o", tmp_path / "b.pdf")
+    assert rc == 2 and "more than fits on A4" in err and "--paper" in err and err.count("\n") == 1
+
+
+def test_check_says_it_is_not_available_yet(crawlerd):
+    rc, _, err = crawlerd("calibrate", "check")
+    assert rc == 2 and "not available yet" in err and err.count("\n") == 1
