@@ -55,7 +55,8 @@ def add_drive_arguments(p):
 
 
 def load_settings(args):
-    """The configuration crawlerd itself would use: the same file, --set items and flags."""
+    """The configuration crawlerd itself would use (the same file, --set items and flags), without
+    the wheel: a replay has none, and the camera's own metres are what is calibrated."""
     from . import settings as S
     from .cli import DEFAULT_CONFIG
 
@@ -64,7 +65,10 @@ def load_settings(args):
         path = DEFAULT_CONFIG
     values = {key: value for key, value in (("mount.tilt_deg", args.tilt), ("odometry.method", args.method))
               if value is not None}
-    return S.load(path, args.set, values)
+    settings = S.load(path, args.set, values)
+    if settings.wheel.enabled:          # the drive calibrates the camera: no wheel fused into its metres
+        settings = settings.with_values({"wheel.backend": "none"}, "calibrate drive")
+    return settings
 
 
 @dataclass(frozen=True)

@@ -274,3 +274,12 @@ def test_the_printed_page_holds_the_board_at_its_true_size(crawlerd, tmp_path, s
 def test_check_says_it_is_not_available_yet(crawlerd):
     rc, _, err = crawlerd("calibrate", "check")
     assert rc == 2 and "not available yet" in err and err.count("\n") == 1
+
+
+def test_the_drive_calibrates_the_camera_alone(drive_run, crawlerd, tmp_path):
+    config = tmp_path / "crawlerd.toml"      # the crawler's own config: a wheel that is not on this machine
+    config.write_text('[mount]\nheight_m = 0.2300\ntilt_deg = 24.0\n\n'
+                      '[wheel]\nbackend = "evdev"\ndevice = "/dev/input/by-path/no-such-wheel"\ncounts_per_m = 5000\n')
+    rc, s, err = crawlerd("calibrate", "drive", drive_run["h264"], "--length", "0.6", "--config", config, "--json")
+    assert rc == 1 and s["height"]["from"] == "[mount] height_m" and s["height"]["now"] == 0.23, err
+    assert s["error_pct"] == pytest.approx(1.92, abs=0.1)
