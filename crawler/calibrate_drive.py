@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -131,12 +132,14 @@ class DriveReplay:
         self.video, self.pts, self.fps, self.marks, self.folder = video, pts, fps, marks, folder
         self.replays = 0
 
-    def measure(self, settings) -> tuple[float, dict, dict, list[dict]]:
+    def measure(self, settings, label: str = "the drive") -> tuple[float, dict, dict, list[dict]]:
         """(metres between the marks, start row, end row, rows between them) with these settings."""
         from .calibrate import CalibrationFailed
         from .service import Mode, RunOptions, Service
 
         self.replays += 1
+        if sys.stderr.isatty():         # the replay's own progress line follows
+            print(f"replay {self.replays}: {label}", file=sys.stderr)
         log = self.folder / f"replay{self.replays}.jsonl"
         options = RunOptions(mode=Mode.REPLAY, video=self.video, pts=self.pts, fps=self.fps, publish=False,
                              log=str(log), max_frames=self.marks.last_frame_needed())
@@ -180,7 +183,8 @@ def height_correction(settings, replay: DriveReplay, measured: float, known: flo
     h0 = settings.mount.mount().height_m
 
     def measure(h):
-        return replay.measure(settings.with_values({"mount.height_m": h}, "the height correction"))[0]
+        return replay.measure(settings.with_values({"mount.height_m": h}, "the height correction"),
+                              f"checking [mount] height_m = {h:.5f}")[0]
 
     h, m, n = secant(measure, h0, measured, h0 * known / measured, known, REFINE_TOL_PCT / 100, MAX_REPLAYS)
     source = "[mount] height_m" if settings.mount.height_m is not None else "the mount formula (Eq. 3.4)"
@@ -199,7 +203,8 @@ def fov_correction(settings, replay: DriveReplay, measured: float, known: float)
         return {"camera.hfov_deg": _tan_scaled(cam.hfov_deg, k), "camera.vfov_deg": _tan_scaled(cam.vfov_deg, k)}
 
     def measure(k):
-        return replay.measure(settings.with_values(fovs(k), "the FOV correction"))[0]
+        return replay.measure(settings.with_values(fovs(k), "the FOV correction"),
+                              f"checking the FOV x tan {k:.5f}")[0]
 
     k, m, n = secant(measure, 1.0, measured, known / measured, known, REFINE_TOL_PCT / 100, MAX_REPLAYS)
     new = fovs(k)
