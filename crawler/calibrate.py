@@ -107,8 +107,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--max-rms", type=_number(0.01, 100, "pixels"), default=DEFAULT_MAX_RMS_PX, metavar="PX",
                    help=f"refuse a fit whose RMS reprojection error is above this ({DEFAULT_MAX_RMS_PX:g} px)")
     i.add_argument("--scale-to", type=_size, metavar="WxH",
-                   help="write the intrinsics for another resolution of the same view, e.g. a 1640x1232 "
-                        "binned recording for the 3280x2464 sensor the live camera plans with")
+                   help="write the intrinsics for another resolution of the same view, e.g. a 1280x960 "
+                        "recording of the binned full view for the 3280x2464 sensor the live camera plans with")
     i.add_argument("--max-views", type=_whole(MIN_VIEWS), default=MAX_VIEWS, metavar="N",
                    help=f"calibrate on at most N views, chosen to differ ({MAX_VIEWS})")
     i.add_argument("--every", type=_count, default=0, metavar="N",

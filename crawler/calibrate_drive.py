@@ -22,6 +22,7 @@ from pathlib import Path
 from .errors import BadConfig
 
 SPEC_PCT = 0.5              # the municipal spec for a cable counter: +-0.5 % of the distance
+IMPLAUSIBLE_PCT = 30.0      # an error this large is a wrong length, marks, tilt or method, not H or FOV
 REFINE_TOL_PCT = 0.01       # a correction is refined until its replay is this close to the taped length
 MAX_REPLAYS = 3             # per correction, after the first replay
 
@@ -231,12 +232,14 @@ def drive_main(args) -> int:
     with tempfile.TemporaryDirectory(prefix="crawlerd-drive-") as folder:
         replay = DriveReplay(args.video, args.pts, args.fps, marks, Path(folder))
         measured, start, end, between = replay.measure(settings)
-        if measured <= 0:
+        error_pct = 100 * (measured - known) / known
+        if abs(error_pct) > IMPLAUSIBLE_PCT:
             from .calibrate import CalibrationFailed
 
-            raise CalibrationFailed(f"the crawler did not move between frame {start['frame']} and frame "
-                                    f"{end['frame']}; check the marks")
-        error_pct = 100 * (measured - known) / known
+            raise CalibrationFailed(
+                f"measured {measured:.4f} m between frame {start['frame']} and frame {end['frame']} against "
+                f"--length {known:g} m ({error_pct:+.1f} %): more than a camera height or FOV error makes; check "
+                "--length, the marks, [mount] tilt_deg and [odometry] method")
         passed = abs(error_pct) <= args.tolerance
         summary = {
             "video": str(args.video), "known_m": known, "measured_m": round(measured, 5),

@@ -160,6 +160,11 @@ def test_the_drive_text_says_fail_and_both_corrections(drive_run, crawlerd, caps
     assert "suggested: the field of view" in out
 
 
+def test_a_length_no_height_could_explain_is_refused(drive_run, crawlerd):
+    rc, s, err = crawlerd("calibrate", "drive", drive_run["h264"], "--length", "2.0", "--tilt", "24", "--json")
+    assert rc == 1 and s is None and "against --length 2 m (-70.0 %)" in err and err.count("\n") == 1
+
+
 def test_marks_by_frame_and_by_time_measure_between_them(drive_run, crawlerd):
     from hw_sim import read_ground_truth
 
