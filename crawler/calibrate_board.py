@@ -3,8 +3,8 @@
 A checkerboard is found with cv2.findChessboardCornersSB on a copy scaled to at most DETECT_SIDE_PX
 and refined with cv2.cornerSubPix at full resolution. SB rather than the classic
 findChessboardCorners: with adaptive thresholding (needed under uneven light) the classic one takes
-~0.8 s on each frame in which it does not find the pattern, e.g. every frame when --board gives the
-wrong count; SB gives up in ~40 ms. (SB's own corners fitted a rendered lens 5x worse than after
+~0.25 s (640x480, this PC) on each frame in which it does not find the pattern, e.g. every frame when
+--board gives the wrong count; SB gives up in ~40 ms. (SB's own corners fitted a rendered lens 5x worse than after
 cornerSubPix; with it, both detectors recover the lens to 0.04 px.)
 A ChArUco board is found through whichever aruco API the installed OpenCV has: 4.6 (Raspberry Pi OS
 Bookworm) has detectMarkers + interpolateCornersCharuco, 4.7 and later have CharucoDetector; both
