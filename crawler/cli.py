@@ -7,6 +7,7 @@ Usage:
   crawlerd --replay FILE [--pts FILE | --fps N] [--log FILE.jsonl] [--annotate OUT.mp4]
            [--realtime] [--publish]        measure a recording
   crawlerd --check-config                  validate the configuration, print the derived geometry
+  crawlerd calibrate intrinsics|drive ...  calibrate the camera (crawlerd calibrate --help)
 
 Prints one JSON summary line on stdout when the run ends; progress goes to stderr on a terminal.
 Exit status: 0 done, 1 a run that broke (the summary still says how far it got), 2 bad input or
@@ -180,6 +181,11 @@ def run(settings, options, hardware=None, stop=None) -> int:
 def main(argv=None) -> int:
     from .signals import StopSignals
 
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] == "calibrate":
+        from .calibrate import main as calibrate_main
+
+        return calibrate_main(argv[1:])
     with StopSignals() as stop:          # first: a SIGTERM during start-up is a clean stop too
         args = build_parser().parse_args(argv)
         logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
