@@ -60,6 +60,8 @@ class OdometryParams:
     max_accel_m_s2: float = 1.5       # a consensus whose speed changed faster than this is refused...
     speed_tol_m_s: float = 0.03       # ...beyond this much noise...
     max_refusal_s: float = 1.0        # ...until it has said the same this long (a collision is real)
+    reacquire_share: float = 0.5      # after a restart: this share of the visible features must agree...
+    reacquire_spread_px: float = 1.0  # ...within this spread (px at the ROI centre)
     dense: DenseParams = field(default_factory=DenseParams)   # where features cannot be had
 
 
@@ -103,6 +105,7 @@ class Odometer:
         self._window = cv2.createHanningWindow(small[::-1], cv2.CV_32F)
         self._rs = camera.readout_s > 0
         self._dense = DenseShift((h, w), self.params.dense)
+        self.reference_seq = 0     # counts new references, so a writer knows when to save one
         self.reset()
 
     # -- public -------------------------------------------------------------------------------------
@@ -116,6 +119,7 @@ class Odometer:
         self._kf: Keyframe | None = None
         self._good_coarse = None   # quarter-size ROI of the last tracked frame, for the guess
         self._good_roi = None
+        self._good_at = (distance, lateral)   # ...and its distance and lateral position
         self._prev_t = None
         self._last_good_t = 0.0
         self._prev_pts = None      # last tracked positions of the keyframe's features (ROI px)
@@ -132,6 +136,7 @@ class Odometer:
         self._speed = SpeedFilter(self.params.speed_window_s)
         self._spread = SpreadGate(self.params, self.m_per_px)
         self._blind_restart = False
+        self._resumed = False      # the keyframe is a saved one: the first match must be clear
 
     def set_distance(self, distance: float = 0.0):
         """Count from `distance` now, without losing track (an operator's reset mid-run)."""
@@ -157,6 +162,27 @@ class Odometer:
             return est
         finally:
             self._prev_t = t_s
+
+    @property
+    def reference(self):
+        """(ROI image, distance, lateral) of the last tracked frame, or None: what a restarted
+        daemon measures its first frames against (the image is the odometer's own copy)."""
+        if self._good_roi is None:
+            return None
+        return self._good_roi, *self._good_at
+
+    def resume_from(self, img: np.ndarray, distance: float, lateral: float, t_s: float) -> bool:
+        """Start from a saved reference (a restart): its image becomes the keyframe, at its distance.
+        The next frames are measured against it with the wide search, as after lost frames; if they
+        do not overlap it, the odometer starts afresh and says so (Estimate.continuous)."""
+        self.reset(distance, lateral)
+        if img.shape != (self.roi[3], self.roi[2]) or not self._new_keyframe(img, t_s):
+            self.reset(distance, lateral)
+            self._blind_restart = True
+            return False
+        self.lost_frames = 1          # the frames while the daemon was down are lost ones
+        self._resumed = True
+        return True
 
     @property
     def tracked_points(self) -> np.ndarray:
@@ -231,6 +257,7 @@ class Odometer:
         self._last_lat = 0.0
         self._last_good_t = t_s
         self._good_roi, self._good_coarse = img, None
+        self._good_at, self.reference_seq = (self.distance, self.lateral), self.reference_seq + 1
         return True
 
     def _start(self, img, t_s) -> Estimate:
@@ -323,6 +350,15 @@ class Odometer:
             return None
         return c
 
+    def _reacquired(self, c: _Consensus, n_visible: int) -> bool:
+        """After a restart the wide search against the saved frame can lock onto a chance match on
+        other wall: the first measurement must be a clear one (most visible features, tight).
+        (Between frames of one run the motion gates already refuse such a match.)"""
+        p = self.params
+        if not self._resumed:
+            return True
+        return c.n_in >= p.reacquire_share * n_visible and c.sigma <= p.reacquire_spread_px * self.m_per_px
+
     def _plausible(self, c: _Consensus, t_s: float) -> bool:
         """The speed of this frame since the last good one (a fresh keyframe counts as one) against
         the speed measured before any gap (gates.py)."""
@@ -333,7 +369,7 @@ class Odometer:
         idx, pts1, n_visible = self._track_guessed(img, t_s)
         n_tracked = len(idx)
         c = self._consensus(idx, pts1, t_s) if n_tracked >= self.params.min_tracks else None
-        if c is not None and not self._plausible(c, t_s):
+        if c is not None and not (self._plausible(c, t_s) and self._reacquired(c, n_visible)):
             c = None
         if c is None:
             if rescue and self._good_roi is not None and self._kf.t_s < self._last_good_t:
@@ -356,6 +392,7 @@ class Odometer:
         self._motion_v = delta * self._jv
         self._last_step, self._last_lat = c.step, c.lat
         self._good_roi, self._good_coarse = img.copy(), None   # the frame buffer goes back to the camera
+        self._good_at, self.reference_seq = (kf.distance + c.step, kf.lateral + c.lat), self.reference_seq + 1
         self._spread.accepted(c.step, c.sigma, c.ratio)
         self._last_good_t = t_s
         self.distance = kf.distance + c.step
@@ -371,7 +408,7 @@ class Odometer:
                  or abs(c.step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, c.n_in, c.sigma, keyframe=False)
         est.continuous = not self._blind_restart
-        self._blind_restart, self._unmeasured_since, self._after_dense = False, None, False
+        self._blind_restart, self._unmeasured_since, self._after_dense, self._resumed = False, None, False, False
         if renew:
             est.keyframe = self._new_keyframe(self._good_roi, t_s, owned=True)
         return est

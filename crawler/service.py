@@ -127,8 +127,20 @@ class Service:
         fresh = Inspection(unit=s.inspection.unit, direction=s.inspection.direction)
         self.daemon = Daemon(self.source, self.odometer, name=s.name, leds=self.leds, outputs=outputs,
                              commands=self.commands, resume=resume, inspection=fresh,
-                             chain=self._chain(resume), wheel=self.wheel,
+                             chain=self._chain(resume), wheel=self.wheel, restart=self._restart(resume),
                              clock=self.hw.clock, stop=self.stop, max_frames=self.options.max_frames)
+
+    def _restart(self, resume: dict | None):
+        """A resumed run's downtime, with the frame to measure it against when one was saved."""
+        if not resume:
+            return None
+        from .restart import RestartGap
+
+        meta = resume.get("reference")
+        img = self.store.load_reference(meta, self.odometer.roi) if meta else None
+        ref = None if img is None else (img, meta["distance_m"], meta["lateral_m"])
+        down = time.time() - resume["saved_unix_s"] if isinstance(resume.get("saved_unix_s"), (int, float)) else 0.0
+        return RestartGap(down, resume["distance_m"], ref, wheel=self.settings.wheel.enabled)
 
     def _chain(self, resume: dict | None) -> DistanceChain:
         """Bridging and, with a wheel, the fusion; resumed from the checkpoint's sigma and wheel state."""
