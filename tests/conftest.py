@@ -35,6 +35,17 @@ def crawlerd(capsys):
     return run
 
 
+@pytest.fixture(scope="session")
+def texture():
+    """A flat random wall for exactly known synthetic motion (test_odometry.view)."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(7)
+    tex = cv2.GaussianBlur((rng.random((6000, 640)) * 255).astype(np.float32), (0, 0), 1.3)
+    return cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+
+
 def free_port() -> int:
     import socket
 

@@ -13,13 +13,6 @@ ROI = (200, 240, 240, 240)
 M_PER_PX = MOUNT.height_m / CAM.fy
 
 
-@pytest.fixture(scope="module")
-def texture():
-    rng = np.random.default_rng(7)
-    tex = cv2.GaussianBlur((rng.random((6000, 640)) * 255).astype(np.float32), (0, 0), 1.3)
-    return cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
-
-
 def view(texture, offset_px):
     """The frame seen after the wall moved offset_px down the image (the car moved forward)."""
     m = np.float32([[1, 0, 0], [0, 1, offset_px - 5000]])

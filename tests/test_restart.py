@@ -16,7 +16,7 @@ from crawler.checkpoint import Checkpoint, CheckpointOutput
 from crawler.odometry import Odometer
 from crawler.geometry import make_projection
 from crawler.restart import RestartGap
-from test_odometry import CAM, M_PER_PX, MOUNT, ROI, texture, view  # noqa: F401  (fixture)
+from test_odometry import CAM, M_PER_PX, MOUNT, ROI, view
 
 ROOT = Path(__file__).resolve().parents[1]
 
