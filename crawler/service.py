@@ -276,9 +276,11 @@ def zenoh_setup(settings: Settings):
     check_zenoh_config(conf)
     access = command_access(conf, settings.name)
     if access == "open":
-        _log.warning("commands (cmd/reset, cmd/led) are open to any peer that reaches this crawler: anyone "
-                     "can zero its distance; give [zenoh] config an access-control policy (docs/deploy.md, "
-                     "'Securing the network')")
+        from .daemon import COMMANDS
+
+        _log.warning("commands (%s) are open to any peer that reaches this crawler: anyone can zero its "
+                     "distance or mark observations; give [zenoh] config an access-control policy "
+                     "(docs/deploy.md, 'Securing the network')", ", ".join(f"cmd/{c}" for c in COMMANDS))
     return conf, access
 
 
@@ -299,7 +301,14 @@ def pwm_aligned(settings: Settings, mode: Mode) -> Settings:
 
 
 def sim_wheel(settings: Settings, options: RunOptions) -> Settings:
-    """--sim-wheel: the simulated encoder read through the kernel backend, as on the crawler."""
+    """--sim-wheel: the simulated encoder read through the kernel backend, as on the crawler.
+    A replay has no wheel: a recording comes without its encoder counts."""
+    if options.mode is Mode.REPLAY and settings.wheel.enabled:
+        _log.warning("[wheel] is not used in --replay: a recording has no live encoder counts; the "
+                     "distance is the camera's alone")
+        from .settings import _wheel_settings
+
+        return replace(settings, wheel=_wheel_settings({"backend": "none"}, settings.name))
     if options.mode is not Mode.SIM or not options.sim.wheel or settings.wheel.enabled:
         return settings
     from .settings import _wheel_settings

@@ -91,6 +91,10 @@ def test_fleet_state_bridged_slip_footage_and_observations_of_a_run():
                                                                              "upstream", "r1")
     events = f.ingest("a", "distance", est(2, 1.1, tracking=False, v=None, bridged=True, source="model"), now=0.1)
     assert kinds(events) == [("a", "lost"), ("a", "bridged")] and "motion model from 1.100 m" in events[1].detail
+    wheel = FleetState()
+    wheel.ingest("w", "distance", est(1, 1.0, source="fused"), now=0.0)
+    events = wheel.ingest("w", "distance", est(2, 1.1, tracking=False, bridged=True, source="wheel"), now=0.1)
+    assert "carried by the wheel from 1.100 m" in events[-1].detail
     assert kinds(f.ingest("a", "distance", est(3, 1.2, tracking=False, bridged=True), now=0.2)) == []
     assert kinds(f.ingest("a", "distance", est(4, 1.3, slip=True, source="fused"), now=0.3)) == [
         ("a", "tracking"), ("a", "slip")]

@@ -157,7 +157,8 @@ class FleetState:
             self._tracking(c, bool(p["tracking"]), now, events)
         bridged, slip = bool(get("bridged", False)), bool(get("slip", False))
         if bridged and not c.bridged:
-            events.append(Event(c.name, "bridged", f"distance carried by the motion model from "
+            by = "the wheel" if c.basis == "wheel" else "the motion model"
+            events.append(Event(c.name, "bridged", f"camera blind: distance carried by {by} from "
                                                    f"{_fmt(c.distance_m)} m"))
         if slip and not c.slip:
             events.append(Event(c.name, "slip", f"wheel slipping at {_fmt(c.distance_m)} m"))
