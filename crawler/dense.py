@@ -26,7 +26,7 @@ class DenseParams:
     blur: float = 1.0                 # Gaussian sigma (pixels at that level) before correlating
     min_response: float = 0.3         # weaker phase-correlation peaks are not a measurement
     noise_px: float = 0.4             # 1-sigma error of one shift, full-resolution pixels
-    rel_error: float = 0.02           # ...and of its conversion to metres (one shift for a whole region)
+    rel_error: float = 0.03           # ...and of its scale: one shift for a whole region, read 0.4-3 % short on smooth walls
     dark_share: float = 0.2           # a region darker than this share of the lit wall: nothing to see
     min_changed: float = 0.2          # fewer pixels changed at all since the last frame: the encoder froze it
     confirm: int = 3                  # shifts in a row that must agree before any is believed...

@@ -390,7 +390,7 @@ def test_watch_records_two_crawlers_marks_silent_lost_bridged(fleet, tmp_path, c
     lines = out.splitlines()                        # not a terminal: one plain line per update
     assert any(" c1 distance seq=" in ln and "sigma_m=" in ln for ln in lines)
     assert any(ln.endswith("c2 SILENT liveliness token gone") for ln in lines)
-    assert any(" c1 BRIDGED distance carried by the motion model" in ln for ln in lines)
+    assert any(" c1 BRIDGED camera blind: distance carried by the motion model" in ln for ln in lines)
     assert "\x1b[" not in out
 
 
