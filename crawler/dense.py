@@ -103,3 +103,25 @@ class DenseShift:
         if response < self.p.min_response:
             return None
         return (du * self._scale, dv * self._scale), float(response)
+
+
+def window_jacobian(wall, roi) -> tuple:
+    """(axial m per row, axial m per column, lateral m per row, lateral m per column) for a global
+    shift of the ROI; `wall` maps frame pixels to wall metres (the odometer's projection).
+
+    A phase correlation of two windowed frames reports the window-weighted (squared: both frames
+    carry it) mean of the local pixel shifts, and the wall metres per pixel change over the ROI
+    (curvature, tilt): so the pixels per metre are averaged with those weights, and inverted."""
+    x, y, w, h = roi
+    s = np.linspace(0.0, 1.0, 11)[1:-1]
+    u, v = np.meshgrid(x + s * (w - 1), y + s * (h - 1))
+    weight = (np.outer(np.sin(np.pi * s) ** 2, np.sin(np.pi * s) ** 2) ** 2).ravel()  # Hanning^2
+    c = np.column_stack([u.ravel(), v.ravel()])
+    dv = wall(c + [0, 0.5]) - wall(c + [0, -0.5])
+    du = wall(c + [0.5, 0]) - wall(c + [-0.5, 0])
+    ok = np.all(np.isfinite(dv) & np.isfinite(du), axis=1) & (np.abs(dv[:, 1]) > 0) & (np.abs(du[:, 0]) > 0)
+    wt = weight[ok] / weight[ok].sum()
+    dv, du = dv[ok], du[ok]
+    jyv = 1.0 / float(wt @ (1.0 / -dv[:, 1]))      # axial metres per image row
+    jsu = 1.0 / float(wt @ (1.0 / du[:, 0]))       # lateral metres per image column
+    return jyv, -float(wt @ du[:, 1]), float(wt @ dv[:, 0]), jsu

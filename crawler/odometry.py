@@ -7,73 +7,26 @@ phase-correlation shift turned into a wall displacement, so the guess follows th
 row). Per-feature displacements along the axis are corrected for rolling shutter and reduced to one
 step by a median/MAD consensus.
 
-A frame is measured only when it can be: one without texture (an LED blackout, a wet or smooth
-wall, a frame the encoder left flat) is not tracked at all, and a consensus that would need an
-acceleration no crawler has (texture that stays put in the image: a specular highlight, blocks the
-encoder copied from the last frame) is refused. Such frames are reported as lost; crawler/gaps.py
-carries the distance across them and says so.
+A frame is measured only when it can be (gates.py): without texture it gets the dense shift
+(dense.py) or nothing; a consensus no crawler's acceleration allows is refused. Frames not
+measured are reported as lost; gaps.py carries the distance across them and says so.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from . import flow
-from .consensus import LATERAL_AXIAL, SpeedFilter, robust_step
-from .dense import DenseParams, DenseShift
+from .consensus import LATERAL_AXIAL, Consensus, SpeedFilter, robust_step, rolling_shutter
+from .dense import DenseShift, window_jacobian
 from .estimate import Estimate
-from .flow import FlowParams
 from .gates import FrameGates, SpreadGate
 from .geometry import Camera, Projection
-from .keyframe import Keyframe, motion_model
-
-
-@dataclass(frozen=True)
-class OdometryParams:
-    flow: FlowParams = field(default_factory=FlowParams)
-    min_tracks: int = 8               # fewer agreeing tracks than this: tracking lost
-    min_inlier_share: float = 0.5     # fewer agreeing than this share of tracked: lost
-    mad_k: float = 3.5                # inlier gate in robust standard deviations
-    inlier_floor_px: float = 0.35     # ...but never tighter than this (in pixels at the ROI centre)
-    renew_share: float = 0.5          # new keyframe when fewer than this share of its features remain
-    renew_floor: float = 2.0          # ...or fewer than this many times min_tracks
-    entry_band: float = 0.6           # moving: new features only in this share of the ROI (entry side)
-    entry_side_px: float = 2.0        # ...once the wall moves this many rows per frame
-    max_baseline_px: float = 120.0    # new keyframe when features moved this far (perspective change)
-    max_lost_frames: int = 15         # keep hoping for the old keyframe this long, then start afresh
-    retry_share: float = 0.6          # fewer of the visible features tracked: retry with the global shift
-    min_response: float = 0.03        # weakest phase-correlation peak trusted as a first guess
-    speed_window_s: float = 0.25      # least-squares speed over this much recent history
-    spread_jump: float = 3.0          # tracks disagreeing this many times more than lately: corrupt frame
-    spread_floor_px: float = 0.1      # ...unless they still agree within this
-    max_spread_refusals: int = 2      # then believe the new level (the scene changed, not the frame)
-    moving_px: float = 3.0            # a step below this many pixels is a standstill for those statistics
-    min_span_share: float = 0.2       # rolling shutter: a feature exposed over less of the interval is dropped
-    full_quality_tracks: float = 3.0  # quality 1 needs this many times min_tracks agreeing
-    min_texture_share: float = 0.25   # less fine texture than this share of the recent frames': not measured
-    min_texture_dn: float = 0.3       # ...nor with less than this at all (a black frame)
-    texture_memory: float = 0.05      # how fast that reference follows the wall (per measured frame)
-    max_accel_m_s2: float = 1.5       # a consensus whose speed changed faster than this is refused...
-    speed_tol_m_s: float = 0.03       # ...beyond this much noise...
-    max_refusal_s: float = 1.0        # ...until it has said the same this long (a collision is real)
-    reacquire_share: float = 0.5      # after a restart: this share of the visible features must agree...
-    reacquire_spread_px: float = 1.0  # ...within this spread (px at the ROI centre)
-    dense: DenseParams = field(default_factory=DenseParams)   # where features cannot be had
-
-
-@dataclass
-class _Consensus:
-    step: float
-    lat: float
-    n_in: int
-    sigma: float
-    ratio: float
-    pts: np.ndarray
-    idx: np.ndarray
+from .keyframe import Keyframe, find_features, motion_model
+from .odometry_params import OdometryParams
 
 
 class Odometer:
@@ -97,7 +50,7 @@ class Odometer:
         dv = self._wall(c + [[0, 0.5]]) - self._wall(c + [[0, -0.5]])
         du = self._wall(c + [[0.5, 0]]) - self._wall(c + [[-0.5, 0]])
         self._jac = (-float(dv[0, 1]), -float(du[0, 1]), float(dv[0, 0]), float(du[0, 0]))
-        self._dense_jac = self._mean_jacobian()
+        self._dense_jac = window_jacobian(self._wall, self.roi)
         self.m_per_px = abs(float(dv[0, 1]))
         lvl = self.params.flow.coarse_level
         self._coarse_scale = float(2 ** lvl)
@@ -118,8 +71,7 @@ class Odometer:
         self.lost_frames = 0
         self._kf: Keyframe | None = None
         self._good_coarse = None   # quarter-size ROI of the last tracked frame, for the guess
-        self._good_roi = None
-        self._good_at = (distance, lateral)   # ...and its distance and lateral position
+        self._good_roi, self._good_at = None, (distance, lateral)   # ...and its distance, lateral
         self._prev_t = None
         self._last_good_t = 0.0
         self._prev_pts = None      # last tracked positions of the keyframe's features (ROI px)
@@ -204,41 +156,13 @@ class Odometer:
     def _wall(self, px: np.ndarray) -> np.ndarray:
         return self.projection.to_wall(self.camera.normalise(px))
 
-    def _mean_jacobian(self) -> tuple:
-        """The global-shift Jacobian for the dense shift. A phase correlation of two windowed
-        frames reports the window-weighted (squared: both frames carry it) mean of the local
-        pixel shifts, and the wall metres per pixel change over the ROI (curvature, tilt): so the
-        pixels per metre are averaged with those weights, and inverted."""
-        x, y, w, h = self.roi
-        s = np.linspace(0.0, 1.0, 11)[1:-1]
-        u, v = np.meshgrid(x + s * (w - 1), y + s * (h - 1))
-        weight = (np.outer(np.sin(np.pi * s) ** 2, np.sin(np.pi * s) ** 2) ** 2).ravel()  # Hanning^2
-        c = np.column_stack([u.ravel(), v.ravel()])
-        dv = self._wall(c + [0, 0.5]) - self._wall(c + [0, -0.5])
-        du = self._wall(c + [0.5, 0]) - self._wall(c + [-0.5, 0])
-        ok = np.all(np.isfinite(dv) & np.isfinite(du), axis=1) & (np.abs(dv[:, 1]) > 0) & (np.abs(du[:, 0]) > 0)
-        wt = weight[ok] / weight[ok].sum()
-        dv, du = dv[ok], du[ok]
-        jyv = 1.0 / float(wt @ (1.0 / -dv[:, 1]))      # axial metres per image row
-        jsu = 1.0 / float(wt @ (1.0 / du[:, 0]))       # lateral metres per image column
-        return jyv, -float(wt @ du[:, 1]), float(wt @ dv[:, 0]), jsu
-
     def _pixels(self, wall: np.ndarray) -> np.ndarray:
         return self.camera.to_pixels(self.projection.to_image(wall))
 
     def _new_keyframe(self, img, t_s, owned: bool = False) -> bool:
         if not owned:
             img = img.copy()  # the frame buffer belongs to the camera or decoder
-        h = img.shape[0]
-        if abs(self._motion_v) > self.params.entry_side_px:
-            # moving: look for features only on the side the wall comes in from; they stay in view
-            # longest, and half the image costs half the detection
-            band = int(self.params.entry_band * h)
-            top = 0 if self._motion_v > 0 else h - band
-            pts = flow.detect(img[top:top + band], self.params.flow, self._border)
-            pts[:, 1] += top
-        else:
-            pts = flow.detect(img, self.params.flow, self._border)
+        pts = find_features(img, self._motion_v, self.params, self._border)
         if len(pts) < self.params.min_tracks:
             self._kf = None
             self._prev_pts = None
@@ -328,29 +252,25 @@ class Odometer:
                     idx, pts1, n_visible = idx2, pts2, n2
         return idx, pts1, n_visible
 
-    def _consensus(self, idx, pts1, t_s) -> _Consensus | None:
+    def _consensus(self, idx, pts1, t_s) -> Consensus | None:
         """The step the tracks agree on, or None (too few agree, or a corrupt frame)."""
         p, kf = self.params, self._kf
         n_tracked = len(idx)
         px = pts1 + self._offset
         moved = (kf.wall.take(idx, 0) - self._wall(px)).T * LATERAL_AXIAL     # rows: lateral, axial
         if self._rs:
-            # rolling shutter: a feature's displacement spans dt plus its change of row time
-            dt = t_s - kf.t_s
-            span = dt + self.camera.row_time(px[:, 1]) - kf.row_t[idx]
-            keep = span > p.min_span_share * dt
-            moved, idx, pts1 = moved[:, keep] * (dt / span[keep]), idx[keep], pts1[keep]
+            moved, idx, pts1 = rolling_shutter(moved, idx, pts1, t_s - kf.t_s, self.camera.row_time(px[:, 1]),
+                                               kf.row_t, p.min_span_share)
         if len(idx) < p.min_tracks:
             return None
         (lat, step), both, (_, sigma) = robust_step(moved, p.inlier_floor_px * self.m_per_px, p.mad_k)
-        c = _Consensus(float(step), float(lat), int(np.count_nonzero(both)), float(sigma), 0.0,
-                       pts1.compress(both, 0), idx.compress(both))
+        c = Consensus(float(step), float(lat), int(np.count_nonzero(both)), float(sigma), 0.0,
+                      pts1.compress(both, 0), idx.compress(both))
         c.ratio = c.sigma / (abs(c.step) + self.m_per_px)
-        if c.n_in < p.min_tracks or c.n_in < p.min_inlier_share * n_tracked or not self._spread.calm(c.step, c.sigma, c.ratio):
-            return None
-        return c
+        enough = c.n_in >= p.min_tracks and c.n_in >= p.min_inlier_share * n_tracked
+        return c if enough and self._spread.calm(c.step, c.sigma, c.ratio) else None
 
-    def _reacquired(self, c: _Consensus, n_visible: int) -> bool:
+    def _reacquired(self, c: Consensus, n_visible: int) -> bool:
         """After a restart the wide search against the saved frame can lock onto a chance match on
         other wall: the first measurement must be a clear one (most visible features, tight).
         (Between frames of one run the motion gates already refuse such a match.)"""
@@ -359,7 +279,7 @@ class Odometer:
             return True
         return c.n_in >= p.reacquire_share * n_visible and c.sigma <= p.reacquire_spread_px * self.m_per_px
 
-    def _plausible(self, c: _Consensus, t_s: float) -> bool:
+    def _plausible(self, c: Consensus, t_s: float) -> bool:
         """The speed of this frame since the last good one (a fresh keyframe counts as one) against
         the speed measured before any gap (gates.py)."""
         dt = t_s - self._last_good_t
@@ -382,7 +302,7 @@ class Odometer:
             return self._lost(img, t_s, n_tracked, n_visible)
         return self._accept(img, t_s, c, n_tracked)
 
-    def _accept(self, img, t_s, c: _Consensus, n_tracked: int) -> Estimate:
+    def _accept(self, img, t_s, c: Consensus, n_tracked: int) -> Estimate:
         p, kf = self.params, self._kf
         dt_prev = t_s - self._last_good_t
         delta = c.step - self._last_step
