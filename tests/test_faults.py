@@ -289,3 +289,19 @@ def test_an_lgpio_error_names_the_pin_and_releases_the_others():
             Leds([12], frequency_hz=20000, pin_factory=pins)
     finally:
         pins.reset()
+
+
+# -- on the Pi ----------------------------------------------------------------------------------------
+
+def test_a_plain_pip_install_leaves_numpy_opencv_and_pyav_to_apt():
+    """PyPI has no armv7 wheels of these: a dependency on them makes pip on the Pi build OpenCV and
+    numpy 2 from source over apt's. Only the `pc` extra may ask for them (the real install is
+    checked on a Debian bookworm root by tests/packaging/bookworm_install_check.sh)."""
+    import re
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    names = lambda reqs: {re.split(r"[<>=!~\[; ]", r, maxsplit=1)[0].lower() for r in reqs}   # noqa: E731
+    apt_built = {"numpy", "opencv-python", "opencv-python-headless", "opencv-contrib-python", "av"}
+    assert not names(project["dependencies"]) & apt_built
+    assert {"numpy", "opencv-python-headless", "av"} <= names(project["optional-dependencies"]["pc"])
