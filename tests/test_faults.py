@@ -256,6 +256,71 @@ def test_a_session_whose_declaration_fails_is_closed_and_frees_its_port(zenoh_pa
         link.close()
 
 
+def strict_json(text: str):
+    """json.loads refusing NaN/Infinity, as every JSON parser but Python's does."""
+    def refuse(word):
+        raise ValueError(f"{word} is not JSON")
+    return json.loads(text, parse_constant=refuse)
+
+
+def test_every_command_to_a_running_daemon_ends_at_once_and_every_payload_is_strict_json(tmp_path):
+    """Refused or run, a query on cmd/<verb> ends with its one reply well inside the asker's timeout (the
+    old control key held refused queries open 3-30 s), and all that is published is JSON."""
+    import signal
+
+    import zenoh
+
+    from conftest import free_port
+    from crawler.zenoh_config import make_zenoh_config
+
+    port = free_port()
+    proc = subprocess.Popen([sys.executable, "-m", "crawler", "--sim", "--no-multicast", "--listen",
+                             f"tcp/127.0.0.1:{port}", "--state-dir", str(tmp_path / "state")], cwd=ROOT,
+                            env=dict(os.environ, CRAWLERD_CONFIG=os.devnull), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    samples = []
+    op = zenoh.open(make_zenoh_config("peer", connect=[f"tcp/127.0.0.1:{port}"], multicast=False))
+    op.declare_subscriber("crawler/crawler1/**", lambda s: samples.append((str(s.key_expr), str(s.encoding),
+                                                                           s.payload.to_string())))
+
+    def ask(selector, payload=None):
+        t0 = time.monotonic()
+        replies = [("ok", r.ok.payload.to_string()) if r.ok is not None else ("err", r.err.payload.to_string())
+                   for r in op.get(selector, payload=payload, timeout=5.0)]
+        return replies, time.monotonic() - t0
+
+    try:
+        assert wait_for(lambda: ask("crawler/crawler1/status")[0], timeout=60), (
+            proc.stderr.read() if proc.poll() is not None else "no status")
+        for selector, payload, words in [
+                ("cmd/explode", None, "unknown command 'explode'"),
+                ("cmd/led?level=2", None, "between 0 and 1"),
+                ("cmd/led?level=abc", None, "must be a number"),
+                ("cmd/led?level=NaN", None, "between 0 and 1"),
+                ("cmd/led", json.dumps({"level": True}), "not true/false"),
+                ("cmd/led", "{not json", "is not JSON"),
+                ("cmd/led?level=0.4", None, None), ("status", None, None)]:
+            replies, took = ask(f"crawler/crawler1/{selector}", payload)
+            assert len(replies) == 1 and took < 1.0, (selector, replies, took)
+            kind, body = replies[0][0], strict_json(replies[0][1])
+            if words is None:
+                assert kind == "ok" and body["ok"] is True, (selector, body)
+            else:
+                assert kind == "err" and words in body["error"], (selector, body)
+        assert strict_json(ask("crawler/crawler1/status")[0][0][1])["led_level"] == 0.4
+        assert wait_for(lambda: any(key.endswith("/status") for key, _, _ in samples), timeout=10)   # 1 Hz
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=30)
+        op.close()
+    assert proc.returncode == 0
+    keys = {key.rsplit("/", 1)[-1] for key, _, _ in samples}
+    assert {"distance", "speed", "status"} <= keys
+    assert {enc for _, enc, _ in samples} == {"application/json"}
+    for _, _, text in samples:
+        strict_json(text)
+
+
 class LgpioError(Exception):
     """What lgpio raises (lgpio.error, a plain Exception): not one of gpiozero's errors."""
 
