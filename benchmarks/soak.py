@@ -2,6 +2,7 @@
 the distance a kill -9 loses.
 
     python benchmarks/soak.py [--minutes 10] [--speed 0.4] [--profile stopgo] [--kills 0]
+    python benchmarks/soak.py --cpu-frames 2400      # the loop's wall time against its own CPU time
 
 Starts the real daemon as a subprocess on loopback Zenoh (multicast off), listens to its status once a
 second (loop latency, fps, sim error) and samples its memory every 5 s, then stops it with SIGTERM and
@@ -10,7 +11,10 @@ varied moments once it measures, restarting it each time, and reports the distan
 the last distance the operator received before the kill against the checkpoint the next run resumes
 from (negative: the checkpoint was written after the last sample that arrived, nothing was lost).
 The loop figures are wall time on this machine, shared with whatever else runs: the load average is
-printed with them. Not a test: it prints figures (docs/reliability.md).
+printed with them. --cpu-frames N runs the same daemon in-process for N frames instead and times each
+loop iteration twice, in wall time and in the loop thread's own CPU time: an iteration whose wall
+time is far above its CPU time was waiting (for a core, or for the GIL that the simulated camera's
+render thread holds), not working. Not a test: it prints figures (docs/reliability.md).
 """
 
 from __future__ import annotations
@@ -104,6 +108,38 @@ def soak(args, state, port, status, log) -> tuple[dict, list[float]]:
     return json.loads(out.strip().splitlines()[-1]), rss
 
 
+def cpu_split(args) -> dict:
+    """The daemon in-process for args.cpu_frames frames: each iteration's wall and thread CPU time (ms)."""
+    import numpy as np
+
+    from crawler import settings
+    from crawler.service import Mode, RunOptions, Service
+    from crawler.sim import SimOptions
+
+    st = settings.load(None, [f"state.directory={json.dumps(tempfile.mkdtemp(prefix='soak-cpu-'))}",
+                              "zenoh.multicast=false", f'zenoh.listen=["tcp/127.0.0.1:{free_port()}"]'])
+    options = RunOptions(mode=Mode.SIM, max_frames=args.cpu_frames, publish=True,
+                         sim=SimOptions(speed_m_s=args.speed, profile=args.profile))
+    wall, cpu = [], []
+    with Service(st, options) as svc:
+        step = svc.daemon._step
+
+        def timed(frame):
+            t0, c0 = time.perf_counter(), time.thread_time()
+            step(frame)
+            wall.append(1000 * (time.perf_counter() - t0))
+            cpu.append(1000 * (time.thread_time() - c0))
+
+        svc.daemon._step = timed
+        svc.run()
+    wall, cpu = np.array(wall), np.array(cpu)
+    worst = int(np.argmax(wall))
+    return {"frames": len(wall), "wall_ms": {"max": round(wall.max(), 2), "p99": round(np.percentile(wall, 99), 2)},
+            "cpu_ms": {"max": round(cpu.max(), 2), "p99": round(np.percentile(cpu, 99), 2)},
+            "worst_wall_iteration_cpu_ms": round(cpu[worst], 2),
+            "load_avg_1min": round(os.getloadavg()[0], 2), "cpus": os.cpu_count()}
+
+
 def main(argv=None):
     import zenoh
 
@@ -114,7 +150,12 @@ def main(argv=None):
     ap.add_argument("--speed", type=float, default=0.4)
     ap.add_argument("--profile", default="stopgo")
     ap.add_argument("--kills", type=int, default=0, help="SIGKILL and restart the daemon this many times")
+    ap.add_argument("--cpu-frames", type=int, default=0, metavar="N",
+                    help="instead: N frames in-process, each iteration's wall against its CPU time")
     args = ap.parse_args(argv)
+    if args.cpu_frames:
+        print(json.dumps(cpu_split(args)))
+        return
     port, work = free_port(), Path(tempfile.mkdtemp(prefix="soak-"))
     status, dist = [], []
     op = zenoh.open(make_zenoh_config("peer", connect=[f"tcp/127.0.0.1:{port}"], multicast=False))

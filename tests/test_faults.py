@@ -9,6 +9,7 @@ docs/reliability.md lists every fault of the issue with the test that shows it.
 
 import json
 import os
+import re
 import resource
 import subprocess
 import sys
@@ -88,16 +89,22 @@ def test_a_disk_that_fills_mid_run_ends_it_with_the_file_named_and_the_summary(r
     whole = log.read_text().splitlines()[:-1]                            # the last line is cut off
     assert [json.loads(line)["frame"] for line in whole] == list(range(s["frames"] - 1))
 
+    # where the annotated video's 1 s fragments start, from a run with room enough
     video = tmp_path / "run.mp4"
-    rc, s, err = crawlerd("--replay", run["h264"], "--annotate", video, "--max-frames", 45, file_limit=300_000)
+    assert crawlerd("--replay", run["h264"], "--annotate", video)[0] == 0
+    data = video.read_bytes()
+    fragments = [m.start() - 4 for m in re.finditer(b"moof", data)]
+    assert len(fragments) == 3                                   # frames 0-29, 30-59, 60
+
+    rc, s, err = crawlerd("--replay", run["h264"], "--annotate", video, file_limit=fragments[1] // 2)
     assert rc == 1 and one_error_line(err, f"cannot write annotated video '{video}'", "File too large")
-    assert s["frames"] < 45 and s["error"].startswith("cannot write annotated video")
-    assert video.stat().st_size == 300_000 and decodable_frames(video) >= 5     # plays up to the break
+    assert s["frames"] < run["truth"]["frames"] and s["error"].startswith("cannot write annotated video")
+    assert video.stat().st_size == fragments[1] // 2 and decodable_frames(video) >= 5   # plays up to the break
 
     # the last fragment is written as the file is closed: a failure there is reported too
-    rc, s, err = crawlerd("--replay", run["h264"], "--annotate", video, "--max-frames", 45, file_limit=700_000)
+    rc, s, err = crawlerd("--replay", run["h264"], "--annotate", video, file_limit=(fragments[2] + len(data)) // 2)
     assert rc == 1 and one_error_line(err, f"cannot finish annotated video '{video}'", "File too large")
-    assert s["frames"] == 45 and decodable_frames(video) >= 30                  # the first second whole
+    assert s["frames"] == run["truth"]["frames"] and decodable_frames(video) == 60      # two whole seconds
 
 
 # -- inputs -------------------------------------------------------------------------------------------
@@ -362,7 +369,6 @@ def test_a_plain_pip_install_leaves_numpy_opencv_and_pyav_to_apt():
     """PyPI has no armv7 wheels of these: a dependency on them makes pip on the Pi build OpenCV and
     numpy 2 from source over apt's. Only the `pc` extra may ask for them (the real install is
     checked on a Debian bookworm root by tests/packaging/bookworm_install_check.sh)."""
-    import re
     import tomllib
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
