@@ -19,6 +19,9 @@ from .geometry import Camera
 from .ports import Frame
 
 RAW_FORMATS = ("h264", "hevc", "mjpeg")          # elementary streams: no timestamps of their own
+# a damaged raw stream can be parsed into more frames than were recorded (a flipped byte that looks like
+# a start code splits one): no pts file fits it then, --fps still does (off by a frame after a split)
+_SPLIT_FRAMES = " (if the recording is damaged, replay it with --fps N instead)"
 IMAGE_FORMATS = ("image2", "png_pipe", "jpeg_pipe", "bmp_pipe", "tiff_pipe", "webp_pipe", "gif")
 
 
@@ -216,13 +219,13 @@ class VideoReplay:
             return
         if self.packets > len(self._times):
             raise VideoError(f"{self.path.name} has {self.packets} frames but {pts_path.name} only "
-                             f"{len(self._times)} timestamps; is it the right pts file?")
+                             f"{len(self._times)} timestamps; is it the right pts file?{_SPLIT_FRAMES}")
 
     def _time_of(self, frame, n: int) -> float:
         if self._times is not None:
             if n >= len(self._times):
                 raise VideoError(f"{self.path.name} has more frames than the {len(self._times)} "
-                                 f"timestamps of its pts file; is it the right pts file?")
+                                 f"timestamps of its pts file; is it the right pts file?{_SPLIT_FRAMES}")
             return float(self._times[n])
         if self.fps is not None:
             return n / self.fps

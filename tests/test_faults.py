@@ -128,6 +128,10 @@ def test_a_damaged_stream_is_counted_and_reported_in_every_timing_mode(render_ru
         damaged = int(damage[0].split()[0])
         assert damaged > 30, damage                          # most of them: each holds ~200 flipped bytes
         assert s["tracking_share"] < 0.5 and any("tracking was lost in" in w for w in s["warnings"])
+    # this seed's flipped bytes split a frame in two: the pts file no longer fits, and the error says what will
+    split = flip_bytes(run["h264"], tmp_path / "split.h264", 0.01, seed=1)
+    rc, s, err = crawlerd("--replay", split, "--pts", run["pts"])
+    assert rc == 2 and one_error_line(err, "has 62 frames but", "only 61 timestamps", "replay it with --fps N")
     rc, s, err = crawlerd("--replay", run["h264"], "--fps", 30)     # the intact stream: nothing to say
     assert rc == 0 and "warnings" not in s and err == ""
 
