@@ -171,6 +171,11 @@ def run(settings, options, hardware=None, stop=None) -> int:
         stats.error = summary["error"] = (
             f"tracking was never acquired in {stats.frames} frames: the wall shows no texture the "
             "odometry can follow (black, uniform, out of focus or overexposed frames?)")
+    elif stats.frames and stats.tracked < stats.frames / 2 and not stats.error:
+        summary.setdefault("warnings", []).append(
+            f"tracking was lost in {stats.frames - stats.tracked} of {stats.frames} frames: the distance over "
+            "them is the motion model's bridge, not a measurement (a damaged recording, or a wall without "
+            "texture?)")
     print(json.dumps(summary), flush=True)
     if stats.error:
         print(f"{PROG}: error: {stats.error}", file=sys.stderr)
