@@ -126,7 +126,7 @@ def test_the_live_table_shows_every_column_and_the_loud_marks():
     f.ingest("crawler2", "status", {"fps": 30.0, "led_level": 0.4, "source": "camera",
                                     "last_error": "camera: frame timeout"}, 2.8)
     f.ingest("crawler3", "distance", est(3, 1.0, slip=True, source="fused"), 0.0)
-    f.ingest("crawler4", "distance", est(3, 2.0, slip=True, source="fused"), 2.9)
+    f.ingest("crawler4", "distance", est(3, 2.0, slip=True, source="fused", unmeasured_s=4.2), 2.9)
     f.tick(3.0)
     text = render_text(render(f, 3.0, key="crawler/*", prompt="mark crawler1: > FL_"), width=220)
     lines = text.splitlines()
@@ -141,7 +141,7 @@ def test_the_live_table_shows_every_column_and_the_loud_marks():
     assert rows["crawler2"].split()[:5] == ["crawler2", "3.2100", "±0.200", "-", "-"]
     assert rows["crawler2"].rstrip().endswith("!! LOST 0.2 s, BRIDGED") and " model " in rows["crawler2"]
     assert rows["crawler3"].rstrip().endswith("!! SILENT: no message for 3.0 s")
-    assert rows["crawler4"].rstrip().endswith("!! SLIP") and " fused " in rows["crawler4"]
+    assert rows["crawler4"].rstrip().endswith("!! SLIP, 4.2 s UNMEASURED (restart)") and " fused " in rows["crawler4"]
     assert "crawler2: last error: camera: frame timeout" in text
     assert "crawler1 #1 FL @3 39.4 ft" in text                                # the observations under the table
     assert "mark crawler1: > FL_" in text
