@@ -2,24 +2,17 @@
 declared with its length. Unit tests on synthetic motion, then crawlerd --sim as a real process."""
 
 import json
-import os
-import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import sim_daemon, stop_after
 from crawler.checkpoint import Checkpoint, CheckpointOutput
 from crawler.odometry import Odometer
 from crawler.geometry import make_projection
 from crawler.restart import RestartGap
 from test_odometry import CAM, M_PER_PX, MOUNT, ROI, view
-
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def reference_after(texture, moved_px):
     odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
@@ -85,26 +78,14 @@ def test_the_reference_is_saved_beside_the_checkpoint_and_refused_for_another_ro
     assert store.load_reference(data["reference"], ROI) is None
 
 
-def crawlerd(state, speed, log):
-    env = dict(os.environ, CRAWLERD_CONFIG=os.devnull)
-    return subprocess.Popen([sys.executable, "-m", "crawler", "--sim", "--sim-speed", str(speed), "--no-publish",
-                             "--state-dir", str(state), "--log", str(log)], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def run_for(proc, seconds):
-    time.sleep(seconds)
-    proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
-    return json.loads(out.strip().splitlines()[-1]), err
-
-
 @pytest.mark.parametrize("speed, measured", [(0.004, True), (0.2, False)])
 def test_crawlerd_restarted_measures_or_declares_the_time_it_was_down(tmp_path, speed, measured):
-    run_for(crawlerd(tmp_path / "state", speed, tmp_path / "a.jsonl"), 3.0)
+    def crawlerd(log):
+        return sim_daemon("--sim-speed", speed, "--state-dir", tmp_path / "state", "--log", tmp_path / log)
+
+    stop_after(crawlerd("a.jsonl"), 3.0)
     time.sleep(1.0)                                              # the crawler moves on while nobody watches
-    summary, err = run_for(crawlerd(tmp_path / "state", speed, tmp_path / "b.jsonl"), 3.0)
+    summary, err = stop_after(crawlerd("b.jsonl"), 3.0)
     rows = [json.loads(line) for line in (tmp_path / "b.jsonl").read_text().splitlines()]
     true = summary["sim_true_distance_m"]
     if measured:
