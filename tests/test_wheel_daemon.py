@@ -32,8 +32,16 @@ def test_the_wheel_carries_a_blind_stretch_is_calibrated_and_flags_slip(tmp_path
     slip = [r["t_s"] for r in rows if r["slip"]]
     assert slip and "wheel slip" in err
     assert 3.0 < min(slip) and max(slip) < 5.5
-    during = [r["slip"] for r in rows if 4.4 <= r["t_s"] <= 4.6]
-    assert during and all(during)
+    # ...and flagged throughout, not now and then (where the second sits in frame time depends on
+    # when the camera started, later on a loaded machine)
+    runs, start = [], None
+    for r in rows:
+        if r["slip"] and start is None:
+            start = r["t_s"]
+        elif not r["slip"] and start is not None:
+            runs.append(r["t_s"] - start)
+            start = None
+    assert max(runs, default=0.0) >= 0.6
 
 
 def test_kill_9_and_restart_with_the_kernel_encoder_loses_at_most_a_centimetre(tmp_path):
