@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import flow
+
 PROBE_STEP_PX = 40.0     # the model's finite-difference step, in pixels at the ROI centre: large
                          # enough to see the curvature of tilted rows, small against the ROI
 
@@ -44,3 +46,14 @@ def motion_model(px: np.ndarray, wall: np.ndarray, to_pixels, m_per_px: float):
     ahead, behind, aside = probes[:n], probes[n:2 * n], probes[2 * n:]
     predict = ((ahead - behind) / (2 * d), (ahead + behind - 2 * px) / (d * d), (aside - px) / d)
     return [a.astype(np.float32) for a in predict]
+
+
+def track_visible(kf, img, step: float, lat: float, view: tuple, params) -> tuple:
+    """The features of keyframe `kf` (its img, pts, model) that should be inside the view boxes
+    after this axial and lateral step, tracked into img from where the model puts them:
+    (indices, positions in img, how many should be visible). The Odometer's tracker port; a worker
+    process (crawler/workers.py) runs the same function on the keyframe it was sent."""
+    guess = kf.pts + kf.model.dot(np.float32([step, step * step, lat])).reshape(-1, 2)
+    idx = flow.within(guess, *view).nonzero()[0]
+    pts1, ok, _ = flow.track(kf.img, img, kf.pts.take(idx, 0), guess.take(idx, 0), params)
+    return idx.compress(ok), pts1.compress(ok, 0), len(idx)     # ok: inside the image too

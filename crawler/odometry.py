@@ -29,7 +29,7 @@ from .estimate import Estimate
 from .flow import FlowParams
 from .gates import FrameGates, SpreadGate
 from .geometry import Camera, Projection
-from .keyframe import Keyframe, motion_model
+from .keyframe import Keyframe, motion_model, track_visible
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,8 @@ class _Consensus:
 class Odometer:
     """Turns a stream of grey frames into distance, speed, lateral motion and a quality figure."""
 
-    def __init__(self, camera: Camera, projection: Projection, roi, params: OdometryParams | None = None):
+    def __init__(self, camera: Camera, projection: Projection, roi, params: OdometryParams | None = None,
+                 tracker=track_visible):
         self.camera = camera
         self.projection = projection
         self.roi = tuple(int(v) for v in roi)
@@ -88,7 +89,7 @@ class Odometer:
         b = self._border
         # where a guess must fall for the feature to be tracked, as a box's centre and half-size
         mid = np.float32([(w - 1) / 2.0, (h - 1) / 2.0])
-        self._view, self._views = (mid, mid - b), {}   # ...and tiled for n points (cheaper numpy)
+        self.view, self._views = (mid, mid - b), {}    # ...and tiled for n points (cheaper numpy)
         # wall metres per image pixel at the ROI centre: the unit of the gates, and the Jacobian that
         # turns the global phase-correlation shift into a first guess of the step
         c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
@@ -103,6 +104,9 @@ class Odometer:
         self._window = cv2.createHanningWindow(small[::-1], cv2.CV_32F)
         self._rs = camera.readout_s > 0
         self._dense = DenseShift((h, w), self.params.dense)
+        # (keyframe, ROI, step, lateral, view boxes, FlowParams) -> tracks: keyframe.track_visible
+        # here, or what crawler/workers.py's processes tracked
+        self.tracker = tracker
         self.reset()
 
     # -- public -------------------------------------------------------------------------------------
@@ -157,6 +161,16 @@ class Odometer:
             return est
         finally:
             self._prev_t = t_s
+
+    @property
+    def keyframe(self) -> Keyframe | None:
+        """The keyframe frames are measured against now (None: none yet, or lost)."""
+        return self._kf
+
+    def guess(self, t_s: float) -> tuple[float, float]:
+        """(step, lateral) since the keyframe that constant velocity predicts at t_s: where tracking
+        starts from."""
+        return self._last_step + self._velocity * (t_s - self._last_good_t), self._last_lat
 
     @property
     def tracked_points(self) -> np.ndarray:
@@ -250,12 +264,8 @@ class Odometer:
 
     def _view_of(self, n: int) -> tuple:
         if n not in self._views:
-            self._views[n] = tuple(np.tile(a, (n, 1)) for a in self._view)
+            self._views[n] = tuple(np.tile(a, (n, 1)) for a in self.view)
         return self._views[n]
-
-    def _predict(self, step: float, lat: float) -> np.ndarray:
-        """Where the keyframe's features should be after this axial and lateral step (ROI px)."""
-        return self._kf.pts + self._kf.model.dot(np.float32([step, step * step, lat])).reshape(-1, 2)
 
     def _coarse_guess(self, img, t_s):
         """(step, lateral) from a phase correlation against the last tracked frame, or None.
@@ -283,16 +293,12 @@ class Odometer:
     def _track(self, img, step_guess, lat_guess):
         """Track the keyframe's features that should be visible: (indices, positions, n visible)."""
         kf = self._kf
-        guess = self._predict(step_guess, lat_guess)
-        idx = flow.within(guess, *self._view_of(len(guess))).nonzero()[0]
-        pts1, ok, _ = flow.track(kf.img, img, kf.pts.take(idx, 0), guess.take(idx, 0), self.params.flow)
-        return idx.compress(ok), pts1.compress(ok, 0), len(idx)     # ok: inside the image too
+        return self.tracker(kf, img, step_guess, lat_guess, self._view_of(kf.n0), self.params.flow)
 
     def _track_guessed(self, img, t_s):
         """Constant velocity first; if most features are then lost, the global shift."""
         p = self.params
-        guess = (self._last_step + self._velocity * (t_s - self._last_good_t), self._last_lat)
-        idx, pts1, n_visible = self._track(img, *guess)
+        idx, pts1, n_visible = self._track(img, *self.guess(t_s))
         if len(idx) < max(p.min_tracks, p.retry_share * n_visible) or self.lost_frames:
             coarse = self._coarse_guess(img, t_s)
             if coarse is not None:
