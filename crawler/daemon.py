@@ -12,6 +12,7 @@ import logging
 import math
 import time
 import uuid
+from collections import deque
 
 from .errors import CrawlerError
 from .distance import DistanceChain
@@ -35,6 +36,13 @@ def new_run_id() -> str:
     return uuid.uuid4().hex[:12]
 
 
+def measure_serially(odometer: Odometer, frames):
+    """(frame, estimate) of each frame as it comes, in this process ([odometry] workers = 1; the
+    pipeline of crawler/workers.py yields the same pairs, a few frames later)."""
+    for frame in frames:
+        yield frame, odometer.update(frame.gray, frame.t_s)
+
+
 def _resumed_inspection(resume: dict | None, fresh: Inspection) -> Inspection:
     """The footage counter and observations the checkpoint kept, else a fresh start."""
     if not resume or "inspection" not in resume:
@@ -53,9 +61,10 @@ class Daemon:
     def __init__(self, source, odometer: Odometer, *, name: str, leds=None, outputs=(),
                  commands: CommandQueue | None = None, resume: dict | None = None,
                  inspection: Inspection | None = None, chain: DistanceChain | None = None, wheel=None,
-                 clock=time.monotonic, stop=lambda: False, max_frames: int | None = None):
+                 clock=time.monotonic, stop=lambda: False, max_frames: int | None = None, measure=None):
         self.source = source
         self.odometer = odometer
+        self.measure = measure or (lambda frames: measure_serially(odometer, frames))
         self.name = name
         self.leds = leds or NoLeds()
         self.outputs = list(outputs)
@@ -74,6 +83,9 @@ class Daemon:
         self.started = 0.0
         self.last_error: str | None = None
         self._frame_times: list[float] = []
+        self._drops: deque[int] = deque(maxlen=FPS_WINDOW)   # frames the source dropped before each
+        self._last_index: int | None = None
+        self._received = 0.0                  # when the newest frame came from the source
         self._last_est = None
 
     # -- what outputs may ask (ports.Run) -------------------------------------------------------------
@@ -98,6 +110,7 @@ class Daemon:
         out = {
             "name": self.name, "source": self.source.kind, "source_detail": self.source.description,
             "fps": round(fps, 2), "frames": self.stats.frames,
+            "dropped_frames": self.stats.dropped, "drop_rate": self._drop_rate(),
             "tracks": est.inliers if est else 0, "tracking": bool(est and est.tracking),
             "distance_m": round(self.distance_m, 6),
             "led_level": round(float(self.leds.level), 3),
@@ -168,10 +181,10 @@ class Daemon:
             output.start(self)
         self.leds.on()
         try:
-            for frame in self.source.frames():
+            for frame, est in self.measure(self._timed(self.source.frames())):
                 if self.stop():                   # a stop signal during start-up: no frame at all
                     break
-                self._step(frame)
+                self._step(frame, est)
                 if self.stop() or (self.max_frames and self.stats.frames >= self.max_frames):
                     break
         except CrawlerError as exc:
@@ -183,9 +196,27 @@ class Daemon:
             self._last_words()
         return self.stats
 
-    def _step(self, frame):
-        t0 = time.perf_counter()
-        est = self.chain.update(self.odometer.update(frame.gray, frame.t_s), self.wheel.read())
+    def _timed(self, frames):
+        """The source's frames, noting when each came (the loop's latency counts from there)."""
+        for frame in frames:
+            self._received = time.perf_counter()
+            yield frame
+
+    def _count_drops(self, index: int):
+        """Gaps in the source's numbering: frames it dropped (the loop was late) or lost."""
+        gap = 0 if self._last_index is None else max(0, index - self._last_index - 1)
+        self._last_index = index
+        self._drops.append(gap)
+        self.stats.dropped += gap
+
+    def _drop_rate(self) -> float:
+        """The share of the source's frames dropped over the last FPS_WINDOW measured ones."""
+        dropped = sum(self._drops)
+        return round(dropped / (len(self._drops) + dropped), 4) if self._drops else 0.0
+
+    def _step(self, frame, measured):
+        est = self.chain.update(measured, self.wheel.read())
+        self._count_drops(frame.index)
         self._published_m = est.distance_m
         self._last_t = frame.t_s
         if self.chain.fusion is not None:
@@ -204,7 +235,7 @@ class Daemon:
         self.commands.drain(self.handle)
         for output in self.outputs:
             output.write(frame, est, self)
-        self.stats.loop.add((time.perf_counter() - t0) * 1000.0)
+        self.stats.loop.add((time.perf_counter() - self._received) * 1000.0)
 
     def _last_words(self):
         """Every output's stop(), even when one of them fails: the checkpoint must not wait on the net."""
