@@ -118,13 +118,17 @@ def arm_replay(h264: Path, meta: dict, fps: float, workers_list, n1: int, n2: in
 
     dec = [ay.run(["benchmarks/cores.py", "--_decode", str(h264), str(n)]) for n in (n1, n2)]
     decode = ay.slope(*dec, n2 - n1)
-    for w in [1, *workers_list]:
-        rep = [ay.run(["-m", "crawler", "--replay", str(h264), "--fps", f"{fps:g}", "--no-publish", "--max-frames",
+    # OpenCV's armhf build (TBB) ignores OPENCV_FOR_THREADS_NUM: one process runs it on the guest's
+    # threads unless told otherwise; the pool sets one thread itself
+    one_thread = ["-c", "import sys, cv2; cv2.setNumThreads(1); from crawler.cli import main; sys.exit(main())"]
+    for w, how in [(1, ["-m", "crawler"]), (1, one_thread)] + [(w, ["-m", "crawler"]) for w in workers_list]:
+        rep = [ay.run([*how, "--replay", str(h264), "--fps", f"{fps:g}", "--no-publish", "--max-frames",
                        str(n), "--workers", str(w), *replay_args(h264, meta)]) for n in (n1, n2)]
         main = ay.slope(*rep, n2 - n1)
         kids = [(a.total - b.total) / (n2 - n1) for a, b in
                 zip(*(sorted(r.children, key=lambda c: -c.total)[:w - 1] for r in (rep[1], rep[0])))]
-        print(f"    ARM, crawlerd --replay --workers {w}: main process {main / 1e6:.2f} M/frame, of which decoding "
+        label = f"--workers {w}" + (", OpenCV on one thread" if how is one_thread else "")
+        print(f"    ARM, crawlerd --replay {label}: main process {main / 1e6:.2f} M/frame, of which decoding "
               f"{decode / 1e6:.2f}: the daemon's loop without decoding {(main - decode) / 1e6:.2f} M/frame (-> "
               f"{ay.pi2_fps(main - decode):.0f} fps)" + (f"; workers {', '.join(f'{k / 1e6:.2f}' for k in kids)}"
                                                           if kids else ""))
