@@ -104,6 +104,7 @@ class OdometrySettings:
     speed_window_s: float = _f(0.25, positive)
     max_incidence_deg: float = _f(70.0, between(0, 90, lo_open=True, hi_open=True))
     pitch_jitter_deg: float = _f(0.25, between(0, 10))    # the car's unmeasured pitching: part of sigma_m
+    workers: int = _f(1, between(1, 16))    # processes that share a frame's work (crawler/workers.py)
 
     def __post_init__(self):
         _check_fields(self, "odometry")
