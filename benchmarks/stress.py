@@ -97,8 +97,9 @@ def calibration(log: Path, csv: Path) -> dict:
 
 
 def measure(args) -> dict:
-    out, name, common = args
+    out, name, common, reseed = args
     fields, extra = CASES[name]
+    fields = {**fields, "seed": fields["seed"] + reseed}     # another wall, shake and noise, same physics
     t0 = time.perf_counter()
     meta = json.loads(render(out, name, fields).read_text())
     t1 = time.perf_counter()
@@ -121,14 +122,17 @@ def main(argv=None):
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="config override for every case, e.g. odometry.method=plane")
     ap.add_argument("--cases", help="comma-separated subset of the cases")
+    ap.add_argument("--reseed", type=int, default=0,
+                    help="add this to every case's seed: the same disturbances on another wall (a held-out check)")
     args = ap.parse_args(argv)
-    out = Path(args.out)
+    out = Path(args.out) if not args.reseed else Path(args.out) / f"reseed{args.reseed}"
+
     out.mkdir(parents=True, exist_ok=True)
     names = args.cases.split(",") if args.cases else list(CASES)
     t0 = time.time()
     rows = []
     with ProcessPoolExecutor(args.jobs) as pool:
-        for row in pool.map(measure, [(out, n, args.set) for n in names]):
+        for row in pool.map(measure, [(out, n, args.set, args.reseed) for n in names]):
             rows.append(row)
             w2 = "-" if row["within_2sigma"] is None else f"{100 * row['within_2sigma']:.0f} %"
             print(f"[{time.time() - t0:6.0f} s] {row['case']:34s} {row['err_pct']:+8.3f} %  lost {row['lost']}  "

@@ -10,8 +10,10 @@ afresh (its distance does not). This stage turns that into a distance that never
 - after a fresh start, the gap's distance is settled once the speed after it is measured: the
   trapezoid of the speeds before and after (a constant acceleration over the gap), or, when the
   model had the crawler stop inside the gap, its braking to a stop and a start at the same rate up
-  to the speed after. A measurement too short to give a speed does not close the gap: if the wall
-  is lost again at once, the gap simply goes on from where it began;
+  to the speed after, after a stand the video does not show (the middle of the stands possible). A
+  measurement too short to give a speed does not close the gap: if the wall is lost again at once,
+  the gap simply goes on from where it began, and frames measured after that short start are
+  continuous with it, not with the frames before the gap;
 - every estimate carries `sigma_m`, its 1-sigma uncertainty: the measurement's own (closed keyframe
   steps: the spread of the tracks over their number, and a scale term), the frame's jitter (what
   moves all tracks at once and so is not in their spread: the camera pitching on a bouncing car,
@@ -80,6 +82,8 @@ class GapBridge:
         self._hist: deque = deque()   # (t, published distance) of recent measured frames
         self._gap: _Gap | None = None  # open (blind), or settling after a fresh start
         self._settling = None         # (t_start, vision distance samples) while the gap settles
+        self._restarted = None        # (t, vision distance) of a fresh start inside the open gap: what
+                                      # the odometer calls continuous after it is continuous with it only
         self._gap_prev_var = 0.0
         self._out_m = distance_m
         self._jitter_var = 0.0        # the frame's pose/compression jitter (variance, m^2)
@@ -237,12 +241,17 @@ class GapBridge:
     def _close_gap(self, est) -> float:
         g = self._gap
         T = est.t_s - g.t0
-        if est.continuous:            # measured across the gap: the odometer's distance has it all,
-            self._gap = None          # and the offset stays as it was before the gap
+        if est.continuous and self._restarted is None:   # measured across the gap: the odometer's
+            self._gap = None          # distance has it all, and the offset stays as it was before it
             self.var_meas += self.p.step_floor_m ** 2
         else:                         # a fresh start: provisionally the model's, settled later
-            self.offset_m = g.d0 + self._travel(g, T) - est.distance_m
-            self._settling = (est.t_s, [(est.t_s, est.distance_m)])
+            samples = [(est.t_s, est.distance_m)]
+            if est.continuous:        # with a fresh start inside the gap: measured since then
+                samples.insert(0, self._restarted)
+            t1, d1 = samples[0]
+            self.offset_m = g.d0 + self._travel(g, t1 - g.t0) - d1
+            self._settling = (t1, samples)
+            self._restarted = None
         self._kf_vision = est.distance_m
         return T
 
@@ -256,9 +265,10 @@ class GapBridge:
             while self._hist and self._hist[-1][0] >= t1:
                 self._hist.pop()
             self._out_m = g.d0
+            self._restarted = samples[0]
             return
         T = t1 - g.t0
-        corrected = self._settled_travel(g, T, v1)
+        corrected, unseen_var = self._settled_travel(g, T, v1)
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
         self.offset_m += correction
         self._out_m += correction
@@ -266,22 +276,27 @@ class GapBridge:
         # both ends known: the trapezoid's residual; only the speed after, or a stop the model
         # guessed inside the gap: as unsure as while blind
         both = g.v0 is not None and self._stops(g, T) is None
-        self.var_gaps += self._model_var(T, 0.0 if g.v0 is None else g.v0, settled=both)
+        self.var_gaps += self._model_var(T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var
         self._gap = None
 
-    def _settled_travel(self, g: _Gap, T: float, v1: float) -> float:
-        """The gap's distance once the speed after it is known."""
+    def _settled_travel(self, g: _Gap, T: float, v1: float) -> tuple[float, float]:
+        """The gap's distance once the speed after it is known, and the variance of what the video
+        cannot show."""
         if g.v0 is None:                      # a run that started blind: the speed after, constant
-            return v1 * T
+            return v1 * T, 0.0
         stop = self._stops(g, T)
         if stop is not None and abs(v1) > self.p.speed_sigma_m_s:
-            # braked to a stop inside the gap, then started again: at the same rate, up to v1
+            # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
+            # How long it stood is not in the video: anything from not at all to all the time left,
+            # so the middle, with that range's uniform variance
             a = abs(g.a0)
             ramp = min(abs(v1) / a, T - stop)
-            return self._travel(g, T) + math.copysign(0.5 * a * ramp * ramp, v1)
+            longest = T - stop - ramp         # the longest it can have stood
+            moved = 0.5 * a * ramp * ramp + abs(v1) * longest / 2
+            return self._travel(g, T) + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
         if stop is not None:
-            return self._travel(g, T)         # stopped, and still stopped
-        return 0.5 * (g.v0 + v1) * T          # a constant acceleration over the gap
+            return self._travel(g, T), 0.0    # stopped, and still stopped
+        return 0.5 * (g.v0 + v1) * T, 0.0     # a constant acceleration over the gap
 
 
 def _slope(ts, ds) -> float | None:

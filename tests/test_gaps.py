@@ -83,6 +83,28 @@ def test_a_crawler_braking_into_a_gap_stops_and_does_not_reverse():
     assert d[-1] == pytest.approx(truth(3.4), abs=0.01)  # stopped where the crawler stopped
 
 
+def test_a_stop_inside_a_gap_is_settled_with_the_middle_of_the_stands_possible():
+    # 0.4 m/s, braking at 0.8 m/s^2 from 1.5 s to a stop at 2.0 s, standing `stand` s, starting
+    # again at 0.8 m/s^2 to 0.4 m/s; blind from 1.8 s to 4.5 s. How long it stood is not in the
+    # video: 0 to 2 s are all possible, and sigma covers them all at 2 sigma
+    def truth(t, stand):
+        if t < 1.5:
+            return 0.4 * t
+        if t < 2.0:
+            return 0.6 + 0.4 * (t - 1.5) - 0.4 * (t - 1.5) ** 2
+        r = min(max(t - 2.0 - stand, 0.0), 0.5)
+        return 0.7 + 0.4 * r * r + 0.4 * max(t - 2.5 - stand, 0.0)
+
+    for stand in (0.0, 1.0, 2.0):
+        t, d, s, _ = drive(lambda x: truth(x, stand), [(1.8, 4.5)], 5.5)
+        err = d[-1] - truth(t[-1], stand)
+        assert abs(err) <= 2 * s[-1], stand
+        if stand == 1.0:
+            assert abs(err) < 0.01                   # the middle one: settled exactly
+        else:
+            assert abs(err) == pytest.approx(0.4, abs=0.02)   # half the range: v1 x 1 s
+
+
 def test_a_measurement_too_short_for_a_speed_does_not_close_the_gap():
     p = BridgeParams()
     bridge = GapBridge(p)
@@ -97,6 +119,36 @@ def test_a_measurement_too_short_for_a_speed_does_not_close_the_gap():
     assert b.bridged
     assert b.distance_m == pytest.approx(d0 + 0.3 * (76 - 60) / FPS, abs=1e-3)
     assert b.gap_s == pytest.approx(16 / FPS, abs=1e-6)
+
+
+def test_a_fresh_start_that_flickers_does_not_pass_for_a_measurement_across_the_gap():
+    # heavy compression: a fresh start, one frame lost, then frames measured against that fresh
+    # start (continuous with it, not with the frames before the gap). The gap is still open: the
+    # speed after it settles it (the crawler sped up from 0.3 to 0.5 m/s inside), and its
+    # uncertainty stands until then
+    def truth(t):
+        if t < 1.0:
+            return 0.3 * t
+        if t < 1.5:
+            return 0.3 + 0.3 * (t - 1) + 0.2 * (t - 1) ** 2
+        return 0.5 + 0.5 * (t - 1.5)
+
+    bridge = GapBridge()
+    for i in range(31):
+        bridge.update(est(i / FPS, truth(i / FPS), keyframe=i % 10 == 0))
+    for i in range(31, 45):
+        blind = bridge.update(est(i / FPS, 0.3, tracking=False))
+    t_fresh = 45 / FPS
+    bridge.update(est(t_fresh, 7.0, continuous=False, keyframe=True))
+    bridge.update(est(46 / FPS, 7.0, tracking=False))
+    for i in range(47, 90):
+        t = i / FPS
+        b = bridge.update(est(t, 7.0 + truth(t) - truth(t_fresh), keyframe=i % 10 == 0))
+        if t - 47 / FPS < BridgeParams().settle_s:
+            assert b.sigma_m > 0.5 * blind.sigma_m      # not settled yet: as unsure as while blind
+    # settled by the trapezoid up to the fresh start, the odometer's own distance after it; the
+    # model alone, 0.3 m/s through the gap, would be 0.05 m short
+    assert b.distance_m == pytest.approx(truth(89 / FPS), abs=1e-3)
 
 
 def test_a_run_that_starts_blind_carries_nothing_and_claims_nothing():
