@@ -36,6 +36,16 @@ _log = logging.getLogger(PROG)
 FLAG_KEYS = {"method": "odometry.method", "tilt": "mount.tilt_deg", "state_dir": "state.directory"}
 
 
+def tilt_value(text: str):
+    """--tilt: degrees, or "auto" (estimated from the flow, docs/calibration.md)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must be degrees or auto") from None
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -88,7 +98,8 @@ def build_parser() -> argparse.ArgumentParser:
     cfg.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
                      help="override one config key, e.g. --set mount.tilt_deg=24 (repeatable)")
     cfg.add_argument("--method", choices=("pixel", "plane", "cylinder"), help="= --set odometry.method=M")
-    cfg.add_argument("--tilt", type=float, metavar="DEG", help="= --set mount.tilt_deg=DEG")
+    cfg.add_argument("--tilt", type=tilt_value, metavar="DEG|auto",
+                     help='= --set mount.tilt_deg=DEG; "auto": estimated from the flow')
     cfg.add_argument("--state-dir", metavar="DIR", help="= --set state.directory=DIR (checkpoint)")
     rep = p.add_argument_group("replay")
     rep.add_argument("--pts", metavar="FILE", help="frame times: rpicam-vid --save-pts or picamera2 pts file")

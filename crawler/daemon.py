@@ -89,7 +89,7 @@ class Daemon:
     def describe(self, estimate) -> dict:
         """An estimate as the outputs publish it: with the crawler, the run and the footage counter."""
         return dict(estimate.as_dict(), name=self.name, run_id=self.run_id,
-                    **self.inspection.fields(estimate.distance_m))
+                    **self.inspection.fields(estimate.distance_m), **self.odometer.pose.frame())
 
     def status(self) -> dict:
         win = self._frame_times
@@ -109,7 +109,7 @@ class Daemon:
             "sigma_m": None if est is None or est.sigma_m is None else round(est.sigma_m, 6),
             "bridged": bool(est and est.bridged), "distance_source": est.source if est else None,
             "slip": bool(est and est.slip), "slips": self._slips(), "wheel": self.wheel.description,
-            **self.inspection.fields(self.distance_m),
+            **self.inspection.fields(self.distance_m), **self.odometer.pose.status(),
         }
         info = self.source.info()
         if info:
@@ -221,6 +221,9 @@ class Daemon:
     def summary(self) -> dict:
         """The closing JSON line."""
         out = self.stats.summary(self.distance_m, self.odometer.lateral)
+        pose = self.odometer.pose.status()
+        if pose:
+            out["pose"] = pose
         for output in self.outputs:
             output.summarize(out)
         return out

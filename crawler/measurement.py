@@ -16,6 +16,7 @@ from .flow import FlowParams
 from .gaps import BridgeParams
 from .geometry import Camera, check_distortion, check_view, make_projection
 from .odometry import Odometer, OdometryParams
+from .pose import PoseEstimator, PoseParams
 from .settings import CameraSettings, OdometrySettings, Settings
 
 
@@ -71,12 +72,26 @@ def check_geometry(settings: Settings, camera: Camera, roi) -> float:
     return worst
 
 
+def pose_params(settings: Settings) -> PoseParams | None:
+    """What the pose estimator assumes of the car, or None when nothing is estimated."""
+    o = settings.odometry
+    if not (settings.mount.tilt_auto or o.pitch_jitter_deg or o.bounce_mm):
+        return None
+    if settings.mount.tilt_auto and o.method == "pixel":
+        raise BadConfig('[mount] tilt_deg = "auto" needs [odometry] method = "cylinder" or "plane": the pixel '
+                        "method has no tilt to estimate")
+    return PoseParams(auto_tilt=settings.mount.tilt_auto, pitch_sigma_deg=o.pitch_jitter_deg,
+                      bounce_sigma_mm=o.bounce_mm)
+
+
 def build_odometer(settings: Settings, camera: Camera, default_roi) -> Odometer:
     """The only place outside the tests that makes an Odometer."""
     roi = resolve_roi(settings.odometry, camera, default_roi)
     check_geometry(settings, camera, roi)
     projection = make_projection(settings.odometry.method, settings.mount.mount())
-    return Odometer(camera, projection, roi, odometry_params(settings.odometry))
+    params = pose_params(settings)
+    pose = None if params is None else PoseEstimator(camera, projection, roi, params)
+    return Odometer(camera, projection, roi, odometry_params(settings.odometry), pose=pose)
 
 
 def bridge_params(settings: Settings, odometer: Odometer) -> BridgeParams:

@@ -30,6 +30,7 @@ from .flow import FlowParams
 from .gates import FrameGates, SpreadGate
 from .geometry import Camera, Projection
 from .keyframe import Keyframe, motion_model
+from .pose import NullPose
 
 
 @dataclass(frozen=True)
@@ -72,16 +73,20 @@ class _Consensus:
     ratio: float
     pts: np.ndarray
     idx: np.ndarray
+    xy: np.ndarray = None         # the inliers' normalised positions, and displacements (for the pose)
+    moved: np.ndarray = None
+    tracked: tuple = ()           # (indices, positions, displacements) of every track, inlier or not
 
 
 class Odometer:
     """Turns a stream of grey frames into distance, speed, lateral motion and a quality figure."""
 
-    def __init__(self, camera: Camera, projection: Projection, roi, params: OdometryParams | None = None):
+    def __init__(self, camera: Camera, projection: Projection, roi, params: OdometryParams | None = None,
+                 pose=None):
         self.camera = camera
-        self.projection = projection
         self.roi = tuple(int(v) for v in roi)
         self.params = params or OdometryParams()
+        self.pose = pose or NullPose()     # crawler/pose.py: tilt, pitch and height from the tracks
         x, y, w, h = self.roi
         self._offset = np.array([x, y], np.float64)
         self._border = self.params.flow.win_px // 2 + 1
@@ -89,14 +94,7 @@ class Odometer:
         # where a guess must fall for the feature to be tracked, as a box's centre and half-size
         mid = np.float32([(w - 1) / 2.0, (h - 1) / 2.0])
         self._view, self._views = (mid, mid - b), {}   # ...and tiled for n points (cheaper numpy)
-        # wall metres per image pixel at the ROI centre: the unit of the gates, and the Jacobian that
-        # turns the global phase-correlation shift into a first guess of the step
-        c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
-        dv = self._wall(c + [[0, 0.5]]) - self._wall(c + [[0, -0.5]])
-        du = self._wall(c + [[0.5, 0]]) - self._wall(c + [[-0.5, 0]])
-        self._jac = (-float(dv[0, 1]), -float(du[0, 1]), float(dv[0, 0]), float(du[0, 0]))
-        self._dense_jac = self._mean_jacobian()
-        self.m_per_px = abs(float(dv[0, 1]))
+        self.remount(projection)
         lvl = self.params.flow.coarse_level
         self._coarse_scale = float(2 ** lvl)
         small = (math.ceil(h / 2 ** lvl), math.ceil(w / 2 ** lvl))
@@ -173,6 +171,19 @@ class Odometer:
         kf, idx = self._prev_origin
         return kf.pts[idx] + self._offset
 
+    def remount(self, projection: Projection):
+        """Measure with this projection (a new tilt) from the next keyframe on. Wall metres per image
+        pixel at the ROI centre are the unit of the gates, and their Jacobian turns the global
+        phase-correlation shift into a first guess of the step."""
+        self.projection = projection
+        x, y, w, h = self.roi
+        c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
+        dv = self._wall(c + [[0, 0.5]]) - self._wall(c + [[0, -0.5]])
+        du = self._wall(c + [[0.5, 0]]) - self._wall(c + [[-0.5, 0]])
+        self._jac = (-float(dv[0, 1]), -float(du[0, 1]), float(dv[0, 0]), float(du[0, 0]))
+        self._dense_jac = self._mean_jacobian()
+        self.m_per_px = abs(float(dv[0, 1]))
+
     # -- internals ----------------------------------------------------------------------------------
 
     def _wall(self, px: np.ndarray) -> np.ndarray:
@@ -218,12 +229,14 @@ class Odometer:
             self._prev_pts = None
             return False
         px = pts.astype(np.float64) + self._offset
-        wall = self._wall(px)
+        xy = self.camera.normalise(px)
+        wall = self.projection.to_wall(xy)
         good = np.all(np.isfinite(wall), axis=1)
-        pts, px, wall = pts[good], px[good], wall[good]
+        pts, px, wall, xy = pts[good], px[good], wall[good], xy[good]
         predict = motion_model(px, wall, self._pixels, self.m_per_px)
         self._kf = Keyframe(img, pts, wall, self.camera.row_time(px[:, 1]), t_s, self.distance,
                             self.lateral, predict)
+        self.pose.keyframe(self._kf, xy, t_s)
         self._prev_pts = self._kf.pts
         self._prev_origin = (self._kf, slice(None))
         self._jv = self._kf.rows_per_m
@@ -306,18 +319,20 @@ class Odometer:
         p, kf = self.params, self._kf
         n_tracked = len(idx)
         px = pts1 + self._offset
-        moved = (kf.wall.take(idx, 0) - self._wall(px)).T * LATERAL_AXIAL     # rows: lateral, axial
+        xy = self.camera.normalise(px)
+        moved = (kf.wall.take(idx, 0) - self.projection.to_wall(xy)).T * LATERAL_AXIAL   # rows: lateral, axial
         if self._rs:
             # rolling shutter: a feature's displacement spans dt plus its change of row time
             dt = t_s - kf.t_s
             span = dt + self.camera.row_time(px[:, 1]) - kf.row_t[idx]
             keep = span > p.min_span_share * dt
-            moved, idx, pts1 = moved[:, keep] * (dt / span[keep]), idx[keep], pts1[keep]
+            moved, idx, pts1, xy = moved[:, keep] * (dt / span[keep]), idx[keep], pts1[keep], xy[keep]
         if len(idx) < p.min_tracks:
             return None
         (lat, step), both, (_, sigma) = robust_step(moved, p.inlier_floor_px * self.m_per_px, p.mad_k)
         c = _Consensus(float(step), float(lat), int(np.count_nonzero(both)), float(sigma), 0.0,
-                       pts1.compress(both, 0), idx.compress(both))
+                       pts1.compress(both, 0), idx.compress(both), xy.compress(both, 0), moved.compress(both, 1),
+                       (idx, xy, moved))
         c.ratio = c.sigma / (abs(c.step) + self.m_per_px)
         if c.n_in < p.min_tracks or c.n_in < p.min_inlier_share * n_tracked or not self._spread.calm(c.step, c.sigma, c.ratio):
             return None
@@ -348,6 +363,8 @@ class Odometer:
 
     def _accept(self, img, t_s, c: _Consensus, n_tracked: int) -> Estimate:
         p, kf = self.params, self._kf
+        fix = self.pose.measure(kf, c, t_s)        # this frame's and the keyframe's pose (crawler/pose.py)
+        c.step, c.lat, kf.distance = c.step + fix.step_m, c.lat + fix.lat_m, kf.distance + fix.base_m
         dt_prev = t_s - self._last_good_t
         delta = c.step - self._last_step
         if dt_prev > 0:
@@ -372,7 +389,9 @@ class Odometer:
         est = self._estimate(t_s, True, n_tracked, c.n_in, c.sigma, keyframe=False)
         est.continuous = not self._blind_restart
         self._blind_restart, self._unmeasured_since, self._after_dense = False, None, False
-        if renew:
+        if fix.remount is not None:
+            self.remount(fix.remount)         # the pose estimate moved the tilt: a keyframe at the new one
+        if renew or fix.remount is not None:
             est.keyframe = self._new_keyframe(self._good_roi, t_s, owned=True)
         return est
 

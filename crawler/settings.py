@@ -81,6 +81,12 @@ def _pins(v) -> str | None:
     return None if all(0 <= p <= 27 for p in v) else "must be BCM GPIO numbers 0..27, e.g. [12, 13]"
 
 
+def _tilt(v) -> str | None:
+    if v == "auto" or not isinstance(v, str) and -80 <= v <= 80:
+        return None
+    return 'must be between -80 and 80 (degrees), or "auto" (estimated from the flow, docs/calibration.md)'
+
+
 def _lgpio_frequency(v) -> str | None:
     # lgpio's software PWM takes 0.1..10000 Hz; beyond that it raises from inside gpiozero
     return None if 0.1 <= v <= 10000 else "must be between 0.1 and 10000 Hz (lgpio's PWM range)"
@@ -136,16 +142,22 @@ class MountSettings:
     car_width_m: float = _f(0.151)
     camera_offset_m: float = _f(0.054)
     height_m: float | None = _f(None)
-    tilt_deg: float = _f(0.0, between(-80, 80))
+    tilt_deg: float | str = _f(0.0, _tilt)    # "auto": estimated online (crawler/pose.py), from 0
 
     def __post_init__(self):
         _check_fields(self, "mount")
         self.mount()   # impossible geometry (car wider than the pipe, camera outside it) is refused here
 
+    @property
+    def tilt_auto(self) -> bool:
+        return self.tilt_deg == "auto"
+
     def mount(self) -> Mount:
+        """The mount to measure with; with tilt "auto", the start of the estimate (0 degrees)."""
+        tilt = 0.0 if self.tilt_auto else self.tilt_deg
         if self.height_m is not None:
-            return Mount.from_height(self.pipe_diameter_m, self.height_m, self.tilt_deg)
-        return Mount.from_car(self.pipe_diameter_m, self.car_width_m, self.camera_offset_m, self.tilt_deg)
+            return Mount.from_height(self.pipe_diameter_m, self.height_m, tilt)
+        return Mount.from_car(self.pipe_diameter_m, self.car_width_m, self.camera_offset_m, tilt)
 
 
 @dataclass(frozen=True)
@@ -160,7 +172,8 @@ class OdometrySettings:
     max_baseline_px: float = _f(120.0, positive)
     speed_window_s: float = _f(0.25, positive)
     max_incidence_deg: float = _f(70.0, between(0, 90, lo_open=True, hi_open=True))
-    pitch_jitter_deg: float = _f(0.25, between(0, 10))    # the car's unmeasured pitching: part of sigma_m
+    pitch_jitter_deg: float = _f(0.25, between(0, 10))    # the car's pitching: estimated per frame, 0: off
+    bounce_mm: float = _f(1.0, between(0, 50))            # the suspension's bounce: likewise
 
     def __post_init__(self):
         _check_fields(self, "odometry")
@@ -364,8 +377,9 @@ def _read_toml(path: Path) -> dict:
 
 # -- the one validator ----------------------------------------------------------------------------------
 
-_TYPES = {"int": (int,), "float": (int, float), "bool": (bool,), "str": (str,)}
-_TYPE_NAMES = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string"}
+_TYPES = {"int": (int,), "float": (int, float), "bool": (bool,), "str": (str,), "float | str": (int, float, str)}
+_TYPE_NAMES = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string",
+               "float | str": 'a number or "auto"'}
 
 
 def _section_values(cls, section: str, data: dict, origin: str) -> dict:
@@ -395,9 +409,11 @@ def _coerce(section: str, key: str, value, annotation: str):
             raise BadConfig(f"{_where(section, key)} = {value!r} must be a list of "
                             f"{_TYPE_NAMES[item].removeprefix('a ').removeprefix('an ')}s")
         return tuple(_coerce(section, key, v, item) for v in value)
-    ok = isinstance(value, _TYPES[base]) and not (isinstance(value, bool) and base in ("int", "float"))
+    ok = isinstance(value, _TYPES[base]) and not (isinstance(value, bool) and base != "bool")
     if not ok:
         raise BadConfig(f"{_where(section, key)} = {value!r} must be {_TYPE_NAMES[base]}")
+    if base == "float | str":
+        base = "str" if isinstance(value, str) else "float"
     if base == "float":
         if not math.isfinite(value):
             raise BadConfig(f"{_where(section, key)} = {value!r} must be a finite number")
