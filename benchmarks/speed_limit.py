@@ -51,7 +51,7 @@ def error_at(args):
     odo = Odometer(cam, make_projection("cylinder", Mount.from_car(0.30, 0.151, 0.054, 0.0)), (0, 0, w, h),
                    OdometryParams(flow=fp))
     lost = 0
-    with VideoReplay(out / f"{name}.h264") as src:
+    with VideoReplay(out / f"{name}.h264", cam) as src:
         for f in src.frames():
             lost += not odo.update(f.gray, f.t_s).tracking
     err = 100 * abs(odo.distance - meta["true_distance_m"]) / meta["true_distance_m"]

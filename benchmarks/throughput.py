@@ -113,7 +113,7 @@ def timing(args, name, window, h264, meta):
     cv2.setNumThreads(1)
     frames = []
     t = time.perf_counter_ns()
-    with VideoReplay(h264) as src:
+    with VideoReplay(h264, build(window, None).camera) as src:
         for f in src.frames():
             frames.append((f.gray.copy(), f.t_s))
     decode_ns = (time.perf_counter_ns() - t) / len(frames)
@@ -150,7 +150,7 @@ def count_instructions(args, window, h264, n_frames):
 
     from crawler.video import VideoReplay
 
-    with VideoReplay(h264) as src:
+    with VideoReplay(h264, build(window, None).camera) as src:
         frames = [(f.gray.copy(), f.t_s) for f in src.frames()]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -204,13 +204,13 @@ ARM_STAGES = {  # stage number: what the instructions counted there did
 }
 
 
-def preload(h264: Path, tmp: Path) -> int:
+def preload(h264: Path, tmp: Path, window) -> int:
     """Decodes once on the host: the guest replays raw frames, so decoding is not counted."""
     import numpy as np
 
     from crawler.video import VideoReplay
 
-    with VideoReplay(h264) as src:
+    with VideoReplay(h264, build(window, None).camera) as src:
         frames = [(f.gray.copy(), f.t_s) for f in src.frames()]
     np.save(tmp / "frames.npy", np.stack([g for g, _ in frames]))
     np.save(tmp / "times.npy", np.array([t for _, t in frames]))
@@ -220,7 +220,7 @@ def preload(h264: Path, tmp: Path) -> int:
 def arm_count(args, window, h264) -> dict:
     """Odometry ARM instructions per frame: slope of the totals, then the per-stage split."""
     with tempfile.TemporaryDirectory() as tmp:
-        if preload(h264, Path(tmp)) < ARM_FRAMES[1]:
+        if preload(h264, Path(tmp), window) < ARM_FRAMES[1]:
             raise SystemExit(f"{h264} has fewer than {ARM_FRAMES[1]} frames; use --frames {ARM_FRAMES[1]}")
         return _arm_runs(args, window, h264, Path(tmp))
 
@@ -344,7 +344,10 @@ def _decode(h264, n):
     """Inside qemu: bare decoding of the first n frames, as the replay does it."""
     from crawler.video import VideoReplay
 
-    with VideoReplay(Path(h264)) as src:
+    from crawler.geometry import Camera
+
+    meta = json.loads(Path(h264).with_suffix(".json").read_text())
+    with VideoReplay(Path(h264), Camera.from_fov(meta["width"], meta["height"], 37.16, 53.50)) as src:
         for i, f in enumerate(src.frames()):
             if i + 1 >= int(n):
                 break

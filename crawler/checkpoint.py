@@ -1,5 +1,9 @@
 """The run's distance on disk, so a restarted daemon resumes instead of starting from zero.
 
+Beside it, the last tracked frame's ROI (reference.npy, with its distance in the checkpoint): a
+restarted daemon measures its first frames against it, so the motion while it was down is measured
+when the wall is still in view, and declared unknown when it is not.
+
 Written atomically (temporary file, fsync, rename): a power cut leaves the old or the new file, never
 half of one. Writing happens on a thread of its own: an SD card that stalls for tens of milliseconds
 must not stall the frame loop. Everything read back is validated; a file that is not a valid
@@ -16,6 +20,8 @@ import re
 import threading
 import time
 from pathlib import Path
+
+import numpy as np
 
 from .ports import Output
 
@@ -41,7 +47,15 @@ def validate(data) -> dict:
     frames = data.get("frames", 0)
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 0:
         raise CorruptCheckpoint(f"frames = {frames!r} is not a frame count")
+    ref = data.get("reference")
+    if ref is not None and not (isinstance(ref, dict) and _finite(ref.get("distance_m"))
+                                and _finite(ref.get("lateral_m"))):
+        data = {k: v for k, v in data.items() if k != "reference"}     # unusable, not fatal
     return dict(data, distance_m=float(d))
+
+
+def _finite(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
 class Checkpoint:
@@ -77,6 +91,40 @@ class Checkpoint:
         _log.error("%s", self.problem)
         return None
 
+    @property
+    def reference_path(self) -> Path:
+        return self.path.with_name("reference.npy")
+
+    def save_reference(self, img: np.ndarray) -> None:
+        """The reference image, atomically (raises OSError)."""
+        tmp = self.reference_path.with_suffix(".tmp")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(tmp, "wb") as f:
+            np.save(f, np.ascontiguousarray(img), allow_pickle=False)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, self.reference_path)
+
+    def load_reference(self, meta, roi) -> np.ndarray | None:
+        """The saved reference for this ROI, or None (none, another ROI, unreadable: said why)."""
+        if not isinstance(meta, dict):
+            return None
+        if list(meta.get("roi") or []) != list(roi):
+            _log.warning("the saved reference frame is for ROI %s, not %s: the restart gap is not measured",
+                         meta.get("roi"), list(roi))
+            return None
+        try:
+            img = np.load(self.reference_path, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            _log.warning("cannot read the reference frame %s (%s): the restart gap is not measured",
+                         self.reference_path, exc)
+            return None
+        if img.dtype != np.uint8 or img.shape != (roi[3], roi[2]):
+            _log.warning("the reference frame %s is not a %dx%d grey image: the restart gap is not measured",
+                         self.reference_path, roi[2], roi[3])
+            return None
+        return img
+
     def save(self, state: dict) -> None:
         """Write atomically; raises OSError (the caller reports it)."""
         data = dict(state, saved_unix_s=round(time.time(), 3))
@@ -94,12 +142,19 @@ class CheckpointOutput(Output):
     """Hands the run's state to a writer thread every `every_s` (10 Hz by default), at once on a
     reset, and writes it one last time when measurement stops. The loop never waits for the disk."""
 
-    def __init__(self, store: Checkpoint, every_s: float = 0.1, clock=time.monotonic):
+    def __init__(self, store: Checkpoint, every_s: float = 0.1, clock=time.monotonic, reference_s: float = 1.0):
         self.store = store
         self.every_s = every_s
+        self.reference_s = reference_s        # the reference image at most this often (it is 50 kB)
         self.clock = clock
         self._last: float | None = None
+        self._last_ref: float | None = None
+        self._ref_seq = None
+        self._ref_d = None                    # the distance of the reference last handed to the writer
+        self.reference_step_m = 1e-3
+        self._ref_meta = None                 # what the reference on disk is (written by the thread only)
         self._pending: dict | None = None
+        self._pending_ref = None
         self._wake = threading.Condition()
         self._closing = False
         self.error: str | None = None         # the latest write failure, None once a write succeeds
@@ -113,12 +168,19 @@ class CheckpointOutput(Output):
                 while self._pending is None and not self._closing:
                     self._wake.wait()
                 state, self._pending = self._pending, None
+                ref, self._pending_ref = self._pending_ref, None
                 if state is None:
                     return
-            self._write(state)
+            self._write(state, ref)
 
-    def _write(self, state: dict):
+    def _write(self, state: dict, ref=None):
         try:
+            if ref is not None:               # the image first: the state must not name one not on disk
+                img, meta = ref
+                self.store.save_reference(img)
+                self._ref_meta = meta
+            if self._ref_meta is not None:
+                state = dict(state, reference=self._ref_meta)
             self.store.save(state)
         except (OSError, ValueError) as exc:
             if self.error is None:
@@ -130,9 +192,20 @@ class CheckpointOutput(Output):
             self.error, self.saved_unix_s = None, time.time()
 
     def _hand_over(self, run):
-        self._last = self.clock()
+        self._last = now = self.clock()
+        ref = None
+        get = getattr(run, "reference", None)
+        found = get() if get else None
+        if found is not None and found[0] != self._ref_seq and (
+                self._last_ref is None or now - self._last_ref >= self.reference_s):
+            d = found[2]["distance_m"]
+            if self._ref_d is None or abs(d - self._ref_d) >= self.reference_step_m:   # a stopped
+                self._ref_d, ref = d, found[1:]              # crawler does not rewrite the same wall
+            self._ref_seq, self._last_ref = found[0], now
         with self._wake:
             self._pending = run.state()
+            if ref is not None:
+                self._pending_ref = ref
             self._wake.notify()
 
     def write(self, frame, estimate, run):
@@ -153,7 +226,9 @@ class CheckpointOutput(Output):
     def stop(self, run):
         """The last state, written now (synchronously: the process may be about to exit)."""
         self._shut_down()
-        self._write(run.state())
+        get = getattr(run, "reference", None)
+        found = get() if get else None
+        self._write(run.state(), None if found is None else found[1:])    # the newest, whatever was pending
 
     def _shut_down(self):
         with self._wake:

@@ -120,7 +120,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.add_argument("--sim-wheel", action="store_true",
                      help="a simulated wheel encoder, read through the kernel rotary-encoder backend")
     sim.add_argument("--sim-slip", type=_interval_list, default=(), metavar="A:B[,A:B]",
-                     help="seconds in which the wheel turns 20 %% faster than the ground moves")
+                     help="seconds of the simulated world's clock (from the run's first start, kept across "
+                          "restarts in the state dir) in which the wheel turns 20 %% faster than the ground "
+                          "moves; frame times start up to ~0.5 s later, with the camera")
     sim.add_argument("--sim-wheel-scale", type=float, default=1.0, metavar="X",
                      help="true over nominal counts per metre of the simulated wheel (1.0)")
     net = add_zenoh_flags(p)
@@ -180,6 +182,11 @@ def run(settings, options, hardware=None, stop=None) -> int:
         stats.error = summary["error"] = (
             f"tracking was never acquired in {stats.frames} frames: the wall shows no texture the "
             "odometry can follow (black, uniform, out of focus or overexposed frames?)")
+    elif stats.frames and stats.tracked < stats.frames / 2 and not stats.error:
+        summary.setdefault("warnings", []).append(
+            f"tracking was lost in {stats.frames - stats.tracked} of {stats.frames} frames: the distance over "
+            "them is the motion model's bridge, not a measurement (a damaged recording, or a wall without "
+            "texture?)")
     print(json.dumps(summary), flush=True)
     if stats.error:
         print(f"{PROG}: error: {stats.error}", file=sys.stderr)

@@ -7,6 +7,7 @@ SpeedFilter: a least-squares speed over time, not frames, so dropped frames add 
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -33,6 +34,15 @@ def robust_step(values: np.ndarray, floor: float, k: float):
     if not n_in:
         return med.ravel(), inl, sigma
     return values.dot(inl.astype(values.dtype)) / n_in, inl, sigma
+
+
+def rolling_shutter(moved, idx, pts, dt: float, row_t_now, row_t_kf, min_span_share: float):
+    """Per-feature displacements at the frames' reference times: a feature's displacement spans
+    dt plus its change of row time. A feature exposed over less than min_span_share of dt is
+    dropped (its rescaling would amplify noise). Returns moved, idx, pts of those kept."""
+    span = dt + row_t_now - row_t_kf[idx]
+    keep = span > min_span_share * dt
+    return moved[:, keep] * (dt / span[keep]), idx[keep], pts[keep]
 
 
 def median(values) -> float:
@@ -79,3 +89,17 @@ class SpeedFilter:
         if n < 2 or den <= 1e-12 * max(1.0, n * self._stt):
             return None
         return (n * self._std - self._st * self._sd) / den
+
+
+@dataclass
+class Consensus:
+    """The step the tracks of one frame agree on: axial, lateral, inliers, spread, spread per step."""
+
+    step: float
+    lat: float
+    n_in: int
+    sigma: float
+    ratio: float
+    pts: np.ndarray
+    idx: np.ndarray
+    tracks: tuple = ()    # (indices, ROI positions, displacements, inlier mask) of every track: the pose's

@@ -53,7 +53,7 @@ class Daemon:
     def __init__(self, source, odometer: Odometer, *, name: str, leds=None, outputs=(),
                  commands: CommandQueue | None = None, resume: dict | None = None,
                  inspection: Inspection | None = None, chain: DistanceChain | None = None, wheel=None,
-                 clock=time.monotonic, stop=lambda: False, max_frames: int | None = None):
+                 clock=time.monotonic, stop=lambda: False, max_frames: int | None = None, restart=None):
         self.source = source
         self.odometer = odometer
         self.name = name
@@ -65,6 +65,9 @@ class Daemon:
         self.max_frames = max_frames
         self.run_id = resume["run_id"] if resume else new_run_id()
         self._resume_m = resume["distance_m"] if resume else 0.0
+        self.restart = restart             # RestartGap of a resumed run (restart.py), else None
+        self.unmeasured_s = float((resume or {}).get("unmeasured_s") or 0.0)
+        self._reference_at = None          # (reference_seq, published distance) of the odometer's reference
         self.inspection = _resumed_inspection(resume, inspection or Inspection())
         self.chain = chain or DistanceChain(GapBridge(distance_m=self._resume_m))
         self.wheel = wheel or NoWheel()
@@ -84,12 +87,25 @@ class Daemon:
 
     def state(self) -> dict:
         return {"distance_m": round(self.distance_m, 6), "frames": self.stats.frames, "run_id": self.run_id,
-                "inspection": self.inspection.to_dict(), **self.chain.state()}
+                "inspection": self.inspection.to_dict(), "unmeasured_s": round(self._unmeasured(), 3),
+                **self.chain.state()}
+
+    def reference(self):
+        """(seq, ROI image, meta) of the frame a restart would measure against, or None."""
+        ref, at = self.odometer.reference, self._reference_at
+        if ref is None or at is None or at[0] != self.odometer.reference_seq:
+            return None
+        return at[0], ref[0], {"distance_m": round(at[1], 6), "lateral_m": round(ref[2], 6),
+                               "roi": list(self.odometer.roi)}
+
+    def _unmeasured(self) -> float:
+        return self.unmeasured_s + (self.restart.unmeasured_s if self.restart else 0.0)
 
     def describe(self, estimate) -> dict:
         """An estimate as the outputs publish it: with the crawler, the run and the footage counter."""
         return dict(estimate.as_dict(), name=self.name, run_id=self.run_id,
-                    **self.inspection.fields(estimate.distance_m), **self.odometer.pose.frame())
+                    unmeasured_s=round(self._unmeasured(), 3), **self.inspection.fields(estimate.distance_m),
+                    **self.odometer.pose.frame())
 
     def status(self) -> dict:
         win = self._frame_times
@@ -109,6 +125,8 @@ class Daemon:
             "sigma_m": None if est is None or est.sigma_m is None else round(est.sigma_m, 6),
             "bridged": bool(est and est.bridged), "distance_source": est.source if est else None,
             "slip": bool(est and est.slip), "slips": self._slips(), "wheel": self.wheel.description,
+            "unmeasured_s": round(self._unmeasured(), 3),
+            "restart": self.restart.as_dict() if self.restart else None,
             **self.inspection.fields(self.distance_m), **self.odometer.pose.status(),
         }
         info = self.source.info()
@@ -130,6 +148,7 @@ class Daemon:
                 self.odometer.reset(distance=0.0)
             self.chain.set_distance(0.0, vision_m=0.0)
             self._published_m = 0.0
+            self.unmeasured_s, self.restart = 0.0, None
             self.run_id = new_run_id()
             self.inspection.new_run()
             for output in self.outputs:
@@ -161,7 +180,10 @@ class Daemon:
         (checkpoint, final status, STOPPING) whatever happens, a crash included.
         """
         self.started = self.clock()
-        if self._resume_m:
+        if self.restart is not None:
+            _log.warning("resuming run %s at %.4f m after %.1f s down", self.run_id, self._resume_m,
+                         self.restart.down_s)
+        elif self._resume_m:
             self.odometer.reset(distance=self._resume_m)
             _log.warning("resuming run %s at %.4f m", self.run_id, self._resume_m)
         for output in self.outputs:
@@ -185,8 +207,11 @@ class Daemon:
 
     def _step(self, frame):
         t0 = time.perf_counter()
-        est = self.chain.update(self.odometer.update(frame.gray, frame.t_s), self.wheel.read())
+        raw = self._measure(frame)
+        est = self.chain.update(raw, self.wheel.read())
         self._published_m = est.distance_m
+        if self.odometer.reference_seq != (self._reference_at or (None,))[0]:
+            self._reference_at = (self.odometer.reference_seq, est.distance_m)
         self._last_t = frame.t_s
         if self.chain.fusion is not None:
             for note in self.chain.fusion.pop_notes():
@@ -205,6 +230,31 @@ class Daemon:
         for output in self.outputs:
             output.write(frame, est, self)
         self.stats.loop.add((time.perf_counter() - t0) * 1000.0)
+
+    def _measure(self, frame):
+        """The odometer's estimate of this frame; across a restart, measured against the saved frame."""
+        gap = self.restart
+        if gap is not None and self.stats.frames == 0 and gap.open:
+            gap.begin(self.odometer, frame.t_s)
+            if not gap.open:
+                self._restart_settled(gap)
+        raw = self.odometer.update(frame.gray, frame.t_s)
+        if gap is not None and gap.open:
+            shift = gap.observe(raw)
+            if shift:
+                self.chain.bridge.offset_m += shift
+            if not gap.open:
+                self._restart_settled(gap)
+        return raw
+
+    def _restart_settled(self, gap):
+        if gap.state == "measured":
+            _log.warning("restart gap of %.1f s measured across: %+.4f m", gap.down_s, gap.measured_m)
+        elif gap.state == "wheel":
+            _log.warning("restart gap of %.1f s not seen by the camera: the wheel carries it", gap.down_s)
+        else:
+            _log.warning("restart gap of %.1f s not seen by the camera: its distance is unknown "
+                         "(unmeasured_s in every message)", gap.down_s)
 
     def _last_words(self):
         """Every output's stop(), even when one of them fails: the checkpoint must not wait on the net."""

@@ -36,9 +36,12 @@ class DistanceChain:
                                    wheel_reading)
         if fused.event is not None:
             self.last_event = fused.event
+        speed = est.speed_m_s
+        if speed is None and fused.source == "wheel" and math.isfinite(fused.speed_m_s):
+            speed = fused.speed_m_s            # the camera is blind: the wheel's speed is the one there is
         return replace(out, distance_m=fused.distance_m, sigma_m=math.hypot(self.bridge.sigma_meas_m, fused.sigma_m),
                        source=fused.source, slip=fused.slip, wheel_distance_m=fused.wheel_distance_m,
-                       wheel_scale=fused.wheel_scale)
+                       wheel_scale=fused.wheel_scale, speed_m_s=speed)
 
     def set_distance(self, distance_m: float, vision_m: float):
         """The operator's reset: the published distance is distance_m, the odometer's vision_m."""

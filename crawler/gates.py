@@ -20,6 +20,13 @@ import cv2
 from .consensus import median
 
 
+def reacquired(c, n_visible: int, p, m_per_px: float) -> bool:
+    """After a restart the wide search against the saved frame can lock onto a chance match on
+    other wall: the first measurement must be a clear one (most visible features, tight).
+    (Between frames of one run the motion gates already refuse such a match.)"""
+    return c.n_in >= p.reacquire_share * n_visible and c.sigma <= p.reacquire_spread_px * m_per_px
+
+
 class FrameGates:
     def __init__(self, params):
         self.p = params               # OdometryParams (and its DenseParams)
@@ -28,6 +35,7 @@ class FrameGates:
         self.v_ref = None             # the speed measured at the last good frame (m/s), None: not yet
         self.t_ref = 0.0              # ...and when
         self._refused_since = None    # the first of a run of refused measurements
+        self._seen = 0
 
     def textured(self, energy: float) -> bool:
         ref = self.texture_ref
@@ -38,11 +46,14 @@ class FrameGates:
         return light is not None and _grey(roi) < self.p.dense.dark_share * light
 
     def remember(self, roi, energy: float):
-        """A measured frame: what the lit, textured wall looks like lately."""
+        """A measured frame: what the lit, textured wall looks like lately (the light, which
+        changes slowly, from every 4th)."""
         a, tex, light = self.p.texture_memory, self.texture_ref, self.light_ref
-        grey = _grey(roi)
         self.texture_ref = energy if tex is None else tex + a * (energy - tex)
-        self.light_ref = grey if light is None else light + a * (grey - light)
+        self._seen += 1
+        if light is None or self._seen % 4 == 0:
+            grey = _grey(roi)
+            self.light_ref = grey if light is None else light + 4 * a * (grey - light)
 
     def measured(self, v: float, t_s: float):
         """The speed of a frame that was believed."""

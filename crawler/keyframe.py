@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import flow
+
 PROBE_STEP_PX = 40.0     # the model's finite-difference step, in pixels at the ROI centre: large
                          # enough to see the curvature of tilted rows, small against the ROI
 
@@ -45,3 +47,16 @@ def motion_model(px: np.ndarray, wall: np.ndarray, to_pixels, m_per_px: float):
     ahead, behind, aside = probes[:n], probes[n:2 * n], probes[2 * n:]
     predict = ((ahead - behind) / (2 * d), (ahead + behind - 2 * px) / (d * d), (aside - px) / d)
     return [a.astype(np.float32) for a in predict]
+
+
+def find_features(img: np.ndarray, motion_rows: float, params, border_px: int) -> np.ndarray:
+    """A new keyframe's features (ROI px). Moving (the wall went `motion_rows` rows in the last
+    frame), only on the side the wall comes in from: they stay in view longest, and half the image
+    costs half the detection. `params`: OdometryParams."""
+    if abs(motion_rows) <= params.entry_side_px:
+        return flow.detect(img, params.flow, border_px)
+    band = int(params.entry_band * img.shape[0])
+    top = 0 if motion_rows > 0 else img.shape[0] - band
+    pts = flow.detect(img[top:top + band], params.flow, border_px)
+    pts[:, 1] += top
+    return pts

@@ -75,11 +75,12 @@ def check_geometry(settings: Settings, camera: Camera, roi) -> float:
 def pose_params(settings: Settings) -> PoseParams | None:
     """What the pose estimator assumes of the car, or None when nothing is estimated."""
     o = settings.odometry
-    if not (settings.mount.tilt_auto or o.pitch_jitter_deg or o.bounce_mm):
+    if not (settings.mount.tilt_auto or o.estimate_pose):
         return None
-    if settings.mount.tilt_auto and o.method == "pixel":
-        raise BadConfig('[mount] tilt_deg = "auto" needs [odometry] method = "cylinder" or "plane": the pixel '
-                        "method has no tilt to estimate")
+    if o.method == "pixel":
+        what = '[mount] tilt_deg = "auto"' if settings.mount.tilt_auto else "[odometry] estimate_pose = true"
+        raise BadConfig(f'{what} needs [odometry] method = "cylinder" or "plane": the pixel method has no '
+                        "tilt or height to estimate")
     return PoseParams(auto_tilt=settings.mount.tilt_auto, pitch_sigma_deg=o.pitch_jitter_deg,
                       bounce_sigma_mm=o.bounce_mm)
 

@@ -7,75 +7,27 @@ phase-correlation shift turned into a wall displacement, so the guess follows th
 row). Per-feature displacements along the axis are corrected for rolling shutter and reduced to one
 step by a median/MAD consensus.
 
-A frame is measured only when it can be: one without texture (an LED blackout, a wet or smooth
-wall, a frame the encoder left flat) is not tracked at all, and a consensus that would need an
-acceleration no crawler has (texture that stays put in the image: a specular highlight, blocks the
-encoder copied from the last frame) is refused. Such frames are reported as lost; crawler/gaps.py
-carries the distance across them and says so.
+A frame is measured only when it can be (gates.py): without texture it gets the dense shift
+(dense.py) or nothing; a consensus no crawler's acceleration allows is refused. Frames not
+measured are reported as lost; gaps.py carries the distance across them and says so.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from . import flow
-from .consensus import LATERAL_AXIAL, SpeedFilter, robust_step
-from .dense import DenseParams, DenseShift
+from .consensus import LATERAL_AXIAL, Consensus, SpeedFilter, robust_step, rolling_shutter
+from .dense import DenseShift, centre_jacobian, window_jacobian
 from .estimate import Estimate
-from .flow import FlowParams
-from .gates import FrameGates, SpreadGate
+from .gates import FrameGates, SpreadGate, reacquired
 from .geometry import Camera, Projection
-from .keyframe import Keyframe, motion_model
+from .keyframe import Keyframe, find_features, motion_model
+from .odometry_params import OdometryParams
 from .pose import NullPose
-
-
-@dataclass(frozen=True)
-class OdometryParams:
-    flow: FlowParams = field(default_factory=FlowParams)
-    min_tracks: int = 8               # fewer agreeing tracks than this: tracking lost
-    min_inlier_share: float = 0.5     # fewer agreeing than this share of tracked: lost
-    mad_k: float = 3.5                # inlier gate in robust standard deviations
-    inlier_floor_px: float = 0.35     # ...but never tighter than this (in pixels at the ROI centre)
-    renew_share: float = 0.5          # new keyframe when fewer than this share of its features remain
-    renew_floor: float = 2.0          # ...or fewer than this many times min_tracks
-    entry_band: float = 0.6           # moving: new features only in this share of the ROI (entry side)
-    entry_side_px: float = 2.0        # ...once the wall moves this many rows per frame
-    max_baseline_px: float = 120.0    # new keyframe when features moved this far (perspective change)
-    max_lost_frames: int = 15         # keep hoping for the old keyframe this long, then start afresh
-    retry_share: float = 0.6          # fewer of the visible features tracked: retry with the global shift
-    min_response: float = 0.03        # weakest phase-correlation peak trusted as a first guess
-    speed_window_s: float = 0.25      # least-squares speed over this much recent history
-    spread_jump: float = 3.0          # tracks disagreeing this many times more than lately: corrupt frame
-    spread_floor_px: float = 0.1      # ...unless they still agree within this
-    max_spread_refusals: int = 2      # then believe the new level (the scene changed, not the frame)
-    moving_px: float = 3.0            # a step below this many pixels is a standstill for those statistics
-    min_span_share: float = 0.2       # rolling shutter: a feature exposed over less of the interval is dropped
-    full_quality_tracks: float = 3.0  # quality 1 needs this many times min_tracks agreeing
-    min_texture_share: float = 0.25   # less fine texture than this share of the recent frames': not measured
-    min_texture_dn: float = 0.3       # ...nor with less than this at all (a black frame)
-    texture_memory: float = 0.05      # how fast that reference follows the wall (per measured frame)
-    max_accel_m_s2: float = 1.5       # a consensus whose speed changed faster than this is refused...
-    speed_tol_m_s: float = 0.03       # ...beyond this much noise...
-    max_refusal_s: float = 1.0        # ...until it has said the same this long (a collision is real)
-    dense: DenseParams = field(default_factory=DenseParams)   # where features cannot be had
-
-
-@dataclass
-class _Consensus:
-    step: float
-    lat: float
-    n_in: int
-    sigma: float
-    ratio: float
-    pts: np.ndarray
-    idx: np.ndarray
-    xy: np.ndarray = None         # the inliers' normalised positions, and displacements (for the pose)
-    moved: np.ndarray = None
-    tracked: tuple = ()           # (indices, positions, displacements) of every track, inlier or not
 
 
 class Odometer:
@@ -84,9 +36,9 @@ class Odometer:
     def __init__(self, camera: Camera, projection: Projection, roi, params: OdometryParams | None = None,
                  pose=None):
         self.camera = camera
+        self.pose = pose or NullPose()     # crawler/pose.py: the camera's tilt, pitch and height
         self.roi = tuple(int(v) for v in roi)
         self.params = params or OdometryParams()
-        self.pose = pose or NullPose()     # crawler/pose.py: tilt, pitch and height from the tracks
         x, y, w, h = self.roi
         self._offset = np.array([x, y], np.float64)
         self._border = self.params.flow.win_px // 2 + 1
@@ -101,6 +53,7 @@ class Odometer:
         self._window = cv2.createHanningWindow(small[::-1], cv2.CV_32F)
         self._rs = camera.readout_s > 0
         self._dense = DenseShift((h, w), self.params.dense)
+        self.reference_seq = 0     # counts new references, so a writer knows when to save one
         self.reset()
 
     # -- public -------------------------------------------------------------------------------------
@@ -113,7 +66,7 @@ class Odometer:
         self.lost_frames = 0
         self._kf: Keyframe | None = None
         self._good_coarse = None   # quarter-size ROI of the last tracked frame, for the guess
-        self._good_roi = None
+        self._good_roi, self._good_at = None, (distance, lateral)   # ...and its distance, lateral
         self._prev_t = None
         self._last_good_t = 0.0
         self._prev_pts = None      # last tracked positions of the keyframe's features (ROI px)
@@ -130,6 +83,7 @@ class Odometer:
         self._speed = SpeedFilter(self.params.speed_window_s)
         self._spread = SpreadGate(self.params, self.m_per_px)
         self._blind_restart = False
+        self._resumed = False      # the keyframe is a saved one: the first match must be clear
 
     def set_distance(self, distance: float = 0.0):
         """Count from `distance` now, without losing track (an operator's reset mid-run)."""
@@ -157,6 +111,27 @@ class Odometer:
             self._prev_t = t_s
 
     @property
+    def reference(self):
+        """(ROI image, distance, lateral) of the last tracked frame, or None: what a restarted
+        daemon measures its first frames against (the image is the odometer's own copy)."""
+        if self._good_roi is None:
+            return None
+        return self._good_roi, *self._good_at
+
+    def resume_from(self, img: np.ndarray, distance: float, lateral: float, t_s: float) -> bool:
+        """Start from a saved reference (a restart): its image becomes the keyframe, at its distance.
+        The next frames are measured against it with the wide search, as after lost frames; if they
+        do not overlap it, the odometer starts afresh and says so (Estimate.continuous)."""
+        self.reset(distance, lateral)
+        if img.shape != (self.roi[3], self.roi[2]) or not self._new_keyframe(img, t_s):
+            self.reset(distance, lateral)
+            self._blind_restart = True
+            return False
+        self.lost_frames = 1          # the frames while the daemon was down are lost ones
+        self._resumed = True
+        return True
+
+    @property
     def tracked_points(self) -> np.ndarray:
         """Current positions (frame pixels) of the features in use, for drawing."""
         if self._prev_pts is None:
@@ -171,42 +146,16 @@ class Odometer:
         kf, idx = self._prev_origin
         return kf.pts[idx] + self._offset
 
-    def remount(self, projection: Projection):
-        """Measure with this projection (a new tilt) from the next keyframe on. Wall metres per image
-        pixel at the ROI centre are the unit of the gates, and their Jacobian turns the global
-        phase-correlation shift into a first guess of the step."""
-        self.projection = projection
-        x, y, w, h = self.roi
-        c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
-        dv = self._wall(c + [[0, 0.5]]) - self._wall(c + [[0, -0.5]])
-        du = self._wall(c + [[0.5, 0]]) - self._wall(c + [[-0.5, 0]])
-        self._jac = (-float(dv[0, 1]), -float(du[0, 1]), float(dv[0, 0]), float(du[0, 0]))
-        self._dense_jac = self._mean_jacobian()
-        self.m_per_px = abs(float(dv[0, 1]))
-
     # -- internals ----------------------------------------------------------------------------------
+
+    def remount(self, projection: Projection):
+        """Measure with this projection (a new tilt): the gates' unit and the shift's Jacobians."""
+        self.projection = projection
+        self._jac, self.m_per_px = centre_jacobian(self._wall, self.roi)
+        self._dense_jac = window_jacobian(self._wall, self.roi)
 
     def _wall(self, px: np.ndarray) -> np.ndarray:
         return self.projection.to_wall(self.camera.normalise(px))
-
-    def _mean_jacobian(self) -> tuple:
-        """The global-shift Jacobian for the dense shift. A phase correlation of two windowed
-        frames reports the window-weighted (squared: both frames carry it) mean of the local
-        pixel shifts, and the wall metres per pixel change over the ROI (curvature, tilt): so the
-        pixels per metre are averaged with those weights, and inverted."""
-        x, y, w, h = self.roi
-        s = np.linspace(0.0, 1.0, 11)[1:-1]
-        u, v = np.meshgrid(x + s * (w - 1), y + s * (h - 1))
-        weight = (np.outer(np.sin(np.pi * s) ** 2, np.sin(np.pi * s) ** 2) ** 2).ravel()  # Hanning^2
-        c = np.column_stack([u.ravel(), v.ravel()])
-        dv = self._wall(c + [0, 0.5]) - self._wall(c + [0, -0.5])
-        du = self._wall(c + [0.5, 0]) - self._wall(c + [-0.5, 0])
-        ok = np.all(np.isfinite(dv) & np.isfinite(du), axis=1) & (np.abs(dv[:, 1]) > 0) & (np.abs(du[:, 0]) > 0)
-        wt = weight[ok] / weight[ok].sum()
-        dv, du = dv[ok], du[ok]
-        jyv = 1.0 / float(wt @ (1.0 / -dv[:, 1]))      # axial metres per image row
-        jsu = 1.0 / float(wt @ (1.0 / du[:, 0]))       # lateral metres per image column
-        return jyv, -float(wt @ du[:, 1]), float(wt @ dv[:, 0]), jsu
 
     def _pixels(self, wall: np.ndarray) -> np.ndarray:
         return self.camera.to_pixels(self.projection.to_image(wall))
@@ -214,29 +163,19 @@ class Odometer:
     def _new_keyframe(self, img, t_s, owned: bool = False) -> bool:
         if not owned:
             img = img.copy()  # the frame buffer belongs to the camera or decoder
-        h = img.shape[0]
-        if abs(self._motion_v) > self.params.entry_side_px:
-            # moving: look for features only on the side the wall comes in from; they stay in view
-            # longest, and half the image costs half the detection
-            band = int(self.params.entry_band * h)
-            top = 0 if self._motion_v > 0 else h - band
-            pts = flow.detect(img[top:top + band], self.params.flow, self._border)
-            pts[:, 1] += top
-        else:
-            pts = flow.detect(img, self.params.flow, self._border)
+        pts = find_features(img, self._motion_v, self.params, self._border)
         if len(pts) < self.params.min_tracks:
             self._kf = None
             self._prev_pts = None
             return False
         px = pts.astype(np.float64) + self._offset
-        xy = self.camera.normalise(px)
-        wall = self.projection.to_wall(xy)
+        wall = self._wall(px)
         good = np.all(np.isfinite(wall), axis=1)
-        pts, px, wall, xy = pts[good], px[good], wall[good], xy[good]
+        pts, px, wall = pts[good], px[good], wall[good]
         predict = motion_model(px, wall, self._pixels, self.m_per_px)
         self._kf = Keyframe(img, pts, wall, self.camera.row_time(px[:, 1]), t_s, self.distance,
                             self.lateral, predict)
-        self.pose.keyframe(self._kf, xy, t_s)
+        self.pose.keyframe(self._kf, px, t_s)
         self._prev_pts = self._kf.pts
         self._prev_origin = (self._kf, slice(None))
         self._jv = self._kf.rows_per_m
@@ -244,6 +183,7 @@ class Odometer:
         self._last_lat = 0.0
         self._last_good_t = t_s
         self._good_roi, self._good_coarse = img, None
+        self._good_at, self.reference_seq = (self.distance, self.lateral), self.reference_seq + 1
         return True
 
     def _start(self, img, t_s) -> Estimate:
@@ -314,31 +254,25 @@ class Odometer:
                     idx, pts1, n_visible = idx2, pts2, n2
         return idx, pts1, n_visible
 
-    def _consensus(self, idx, pts1, t_s) -> _Consensus | None:
+    def _consensus(self, idx, pts1, t_s) -> Consensus | None:
         """The step the tracks agree on, or None (too few agree, or a corrupt frame)."""
         p, kf = self.params, self._kf
         n_tracked = len(idx)
         px = pts1 + self._offset
-        xy = self.camera.normalise(px)
-        moved = (kf.wall.take(idx, 0) - self.projection.to_wall(xy)).T * LATERAL_AXIAL   # rows: lateral, axial
+        moved = (kf.wall.take(idx, 0) - self._wall(px)).T * LATERAL_AXIAL     # rows: lateral, axial
         if self._rs:
-            # rolling shutter: a feature's displacement spans dt plus its change of row time
-            dt = t_s - kf.t_s
-            span = dt + self.camera.row_time(px[:, 1]) - kf.row_t[idx]
-            keep = span > p.min_span_share * dt
-            moved, idx, pts1, xy = moved[:, keep] * (dt / span[keep]), idx[keep], pts1[keep], xy[keep]
+            moved, idx, pts1 = rolling_shutter(moved, idx, pts1, t_s - kf.t_s, self.camera.row_time(px[:, 1]),
+                                               kf.row_t, p.min_span_share)
         if len(idx) < p.min_tracks:
             return None
         (lat, step), both, (_, sigma) = robust_step(moved, p.inlier_floor_px * self.m_per_px, p.mad_k)
-        c = _Consensus(float(step), float(lat), int(np.count_nonzero(both)), float(sigma), 0.0,
-                       pts1.compress(both, 0), idx.compress(both), xy.compress(both, 0), moved.compress(both, 1),
-                       (idx, xy, moved))
+        c = Consensus(float(step), float(lat), int(np.count_nonzero(both)), float(sigma), 0.0,
+                      pts1.compress(both, 0), idx.compress(both), (idx, pts1, moved, both))
         c.ratio = c.sigma / (abs(c.step) + self.m_per_px)
-        if c.n_in < p.min_tracks or c.n_in < p.min_inlier_share * n_tracked or not self._spread.calm(c.step, c.sigma, c.ratio):
-            return None
-        return c
+        enough = c.n_in >= p.min_tracks and c.n_in >= p.min_inlier_share * n_tracked
+        return c if enough and self._spread.calm(c.step, c.sigma, c.ratio) else None
 
-    def _plausible(self, c: _Consensus, t_s: float) -> bool:
+    def _plausible(self, c: Consensus, t_s: float) -> bool:
         """The speed of this frame since the last good one (a fresh keyframe counts as one) against
         the speed measured before any gap (gates.py)."""
         dt = t_s - self._last_good_t
@@ -348,7 +282,8 @@ class Odometer:
         idx, pts1, n_visible = self._track_guessed(img, t_s)
         n_tracked = len(idx)
         c = self._consensus(idx, pts1, t_s) if n_tracked >= self.params.min_tracks else None
-        if c is not None and not self._plausible(c, t_s):
+        clear = c is not None and (not self._resumed or reacquired(c, n_visible, self.params, self.m_per_px))
+        if c is not None and not (self._plausible(c, t_s) and clear):
             c = None
         if c is None:
             if rescue and self._good_roi is not None and self._kf.t_s < self._last_good_t:
@@ -361,7 +296,7 @@ class Odometer:
             return self._lost(img, t_s, n_tracked, n_visible)
         return self._accept(img, t_s, c, n_tracked)
 
-    def _accept(self, img, t_s, c: _Consensus, n_tracked: int) -> Estimate:
+    def _accept(self, img, t_s, c: Consensus, n_tracked: int) -> Estimate:
         p, kf = self.params, self._kf
         fix = self.pose.measure(kf, c, t_s)        # this frame's and the keyframe's pose (crawler/pose.py)
         c.step, c.lat, kf.distance = c.step + fix.step_m, c.lat + fix.lat_m, kf.distance + fix.base_m
@@ -373,6 +308,7 @@ class Odometer:
         self._motion_v = delta * self._jv
         self._last_step, self._last_lat = c.step, c.lat
         self._good_roi, self._good_coarse = img.copy(), None   # the frame buffer goes back to the camera
+        self._good_at, self.reference_seq = (kf.distance + c.step, kf.lateral + c.lat), self.reference_seq + 1
         self._spread.accepted(c.step, c.sigma, c.ratio)
         self._last_good_t = t_s
         self.distance = kf.distance + c.step
@@ -388,7 +324,7 @@ class Odometer:
                  or abs(c.step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, c.n_in, c.sigma, keyframe=False)
         est.continuous = not self._blind_restart
-        self._blind_restart, self._unmeasured_since, self._after_dense = False, None, False
+        self._blind_restart, self._unmeasured_since, self._after_dense, self._resumed = False, None, False, False
         if fix.remount is not None:
             self.remount(fix.remount)         # the pose estimate moved the tilt: a keyframe at the new one
         if renew or fix.remount is not None:

@@ -88,11 +88,15 @@ class Annotator(Output):
         from fractions import Fraction
 
         self.path = Path(path)
-        probe_file(self.path, "annotated video")       # PyAV itself opens the file only at the first packet
+        probe_file(self.path, "annotated video")
+        self._file = None
         try:
-            self._out = av.open(str(self.path), "w")
+            self._file = _VideoFile(self.path)
+            self._out = av.open(self._file, "w", options=_streaming_options(self.path))
             self._stream = self._out.add_stream("libx264", rate=Fraction(fps).limit_denominator(1000))
         except (av.error.FFmpegError, OSError, ValueError) as exc:
+            if self._file is not None:
+                self._file.close()
             raise OutputError(f"cannot write annotated video {str(self.path)!r}: {_why(exc)}") from None
         cam = tracks.camera
         self._stream.width, self._stream.height = cam.width & ~1, cam.height & ~1
@@ -131,16 +135,59 @@ class Annotator(Output):
         if self._closed:
             return
         self._closed = True
+        failed = None
         try:
             for packet in self._stream.encode():
                 self._out.mux(packet)
+            self._out.close()           # writes the last fragment (or a plain MP4's index)
         except (av.error.FFmpegError, OSError) as exc:
-            raise OutputError(f"cannot finish annotated video {str(self.path)!r}: {_why(exc)}") from None
-        finally:
+            failed = exc
             try:
-                self._out.close()
+                self._out.close()       # free it; the first error is the one to report
             except (av.error.FFmpegError, OSError):
                 pass
+        self._file.close()
+        failed = self._file.error or failed
+        if failed is not None:
+            raise OutputError(f"cannot finish annotated video {str(self.path)!r}: {_why(failed)}") from None
+
+
+class _VideoFile:
+    """The file PyAV writes the annotated video through. FFmpeg drops some write errors (the last
+    fragment of an MP4, written at close, on a full disk): this keeps the first, for close() to report."""
+
+    def __init__(self, path: Path):
+        self.name = str(path)             # PyAV picks the container format from the name
+        self._f = open(path, "wb")
+        self.error: OSError | None = None
+
+    def write(self, data) -> int:
+        try:
+            return self._f.write(data)
+        except OSError as exc:
+            self.error = self.error or exc
+            raise
+
+    def seek(self, offset: int, whence: int = 0) -> int:
+        return self._f.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def close(self):
+        try:
+            self._f.close()
+        except OSError as exc:
+            self.error = self.error or exc
+
+
+def _streaming_options(path: Path) -> dict:
+    """An MP4 written as one-second fragments: a run cut short (a full disk, kill -9, a power cut)
+    leaves a video that plays up to its last whole second. A plain MP4 is unreadable until its index
+    is written at the very end. Matroska streams by nature."""
+    if path.suffix.lower() in (".mp4", ".mov", ".m4v"):
+        return {"movflags": "frag_keyframe+empty_moov+default_base_moof", "frag_duration": "1000000"}
+    return {}
 
 
 def _why(exc) -> str:

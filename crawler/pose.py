@@ -60,7 +60,7 @@ NO_FIX = PoseFix()
 class NullPose:
     """The odometer without a pose estimate: the mount is what the configuration says."""
 
-    def keyframe(self, kf, xy, t_s):
+    def keyframe(self, kf, px, t_s):
         pass
 
     def measure(self, kf, c, t_s) -> PoseFix:
@@ -82,6 +82,7 @@ class PoseEstimator:
     def __init__(self, camera, projection, roi, params: PoseParams | None = None):
         self.p = params or PoseParams()
         self.camera = camera
+        self._offset = np.array(roi[:2], np.float64)
         self.tilt = (AutoTilt(camera, projection, roi, self.p.tilt) if self.p.auto_tilt
                      else FixedTilt(camera, projection, roi))
         self._limit = np.array([math.radians(self.p.pitch_sigma_deg), self.p.bounce_sigma_mm / 1000.0])
@@ -101,8 +102,10 @@ class PoseEstimator:
 
     # -- the odometer's hooks ---------------------------------------------------------------------
 
-    def keyframe(self, kf, xy, t_s):
-        """A new keyframe: its features' fields, and its pose is this frame's (a clone of the state)."""
+    def keyframe(self, kf, px, t_s):
+        """A new keyframe (its features at frame pixels px): their fields, and its pose is this
+        frame's (a clone of the state)."""
+        xy = self.camera.normalise(px)
         self._serial += 1
         kf.pose = (self.tilt.field.at(xy), xy, self._serial)
         self._closing = self._end if t_s == self._t else None
@@ -117,13 +120,15 @@ class PoseEstimator:
         inlier indices, their positions now (normalised), their displacements (rows lateral, axial,
         metres), its robust spread (metres), and the same for every track. The tilt reads every
         track: the consensus chose its inliers at the tilt it has, and would hide a wrong one."""
-        idx, xy, moved = c.idx, c.xy, c.moved
+        idx = c.idx
         if kf.pose is None or len(idx) < 3:
             return NO_FIX
+        t_idx, t_pts, t_moved, both = c.tracks
+        t_xy = self.camera.normalise(t_pts + self._offset)
+        xy, moved = t_xy.compress(both, 0), t_moved.compress(both, 1)
         self._predict(t_s)
         jk, jc, xy_k = kf.pose[0].take(idx, 0), self.tilt.field.at(xy), kf.pose[1].take(idx, 0)
         moved_px = abs(float(moved[1].mean())) / (self.projection.mount.height_m / self.camera.fy)
-        t_idx, t_xy, _ = c.tracked
         base = self.tilt.update(kf.pose[2], kf.pose[1].take(t_idx, 0), t_xy, moved_px, t_s)
         H, z = self._model(jk, jc, moved, self.tilt.tau)
         self._learn_levels(H, z, c.sigma, t_s - kf.t_s)

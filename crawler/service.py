@@ -127,8 +127,20 @@ class Service:
         fresh = Inspection(unit=s.inspection.unit, direction=s.inspection.direction)
         self.daemon = Daemon(self.source, self.odometer, name=s.name, leds=self.leds, outputs=outputs,
                              commands=self.commands, resume=resume, inspection=fresh,
-                             chain=self._chain(resume), wheel=self.wheel,
+                             chain=self._chain(resume), wheel=self.wheel, restart=self._restart(resume),
                              clock=self.hw.clock, stop=self.stop, max_frames=self.options.max_frames)
+
+    def _restart(self, resume: dict | None):
+        """A resumed run's downtime, with the frame to measure it against when one was saved."""
+        if not resume:
+            return None
+        from .restart import RestartGap
+
+        meta = resume.get("reference")
+        img = self.store.load_reference(meta, self.odometer.roi) if meta else None
+        ref = None if img is None else (img, meta["distance_m"], meta["lateral_m"])
+        down = time.time() - resume["saved_unix_s"] if isinstance(resume.get("saved_unix_s"), (int, float)) else 0.0
+        return RestartGap(down, resume["distance_m"], ref, wheel=self.settings.wheel.enabled)
 
     def _chain(self, resume: dict | None) -> DistanceChain:
         """Bridging and, with a wheel, the fusion; resumed from the checkpoint's sigma and wheel state."""
@@ -264,9 +276,11 @@ def zenoh_setup(settings: Settings):
     check_zenoh_config(conf)
     access = command_access(conf, settings.name)
     if access == "open":
-        _log.warning("commands (cmd/reset, cmd/led) are open to any peer that reaches this crawler: anyone "
-                     "can zero its distance; give [zenoh] config an access-control policy (docs/deploy.md, "
-                     "'Securing the network')")
+        from .daemon import COMMANDS
+
+        _log.warning("commands (%s) are open to any peer that reaches this crawler: anyone can zero its "
+                     "distance or mark observations; give [zenoh] config an access-control policy "
+                     "(docs/deploy.md, 'Securing the network')", ", ".join(f"cmd/{c}" for c in COMMANDS))
     return conf, access
 
 
@@ -287,7 +301,14 @@ def pwm_aligned(settings: Settings, mode: Mode) -> Settings:
 
 
 def sim_wheel(settings: Settings, options: RunOptions) -> Settings:
-    """--sim-wheel: the simulated encoder read through the kernel backend, as on the crawler."""
+    """--sim-wheel: the simulated encoder read through the kernel backend, as on the crawler.
+    A replay has no wheel: a recording comes without its encoder counts."""
+    if options.mode is Mode.REPLAY and settings.wheel.enabled:
+        _log.warning("[wheel] is not used in --replay: a recording has no live encoder counts; the "
+                     "distance is the camera's alone")
+        from .settings import _wheel_settings
+
+        return replace(settings, wheel=_wheel_settings({"backend": "none"}, settings.name))
     if options.mode is not Mode.SIM or not options.sim.wheel or settings.wheel.enabled:
         return settings
     from .settings import _wheel_settings

@@ -64,8 +64,8 @@ class RunStats:
         out = {
             "frames": self.frames,
             "duration_s": round(duration, 6),
-            "distance_m": round(distance_m, 6),
-            "lateral_m": round(lateral_m, 6),
+            "distance_m": round(distance_m, 6) + 0.0,    # (+ 0.0: never "-0.0")
+            "lateral_m": round(lateral_m, 6) + 0.0,
             "fps_processed": round(self.frames / self.wall_s, 2) if self.wall_s > 0 else None,
             "tracking_share": round(self.tracked / self.frames, 4) if self.frames else 0.0,
             "lost_frames": self.frames - self.tracked,

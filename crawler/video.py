@@ -19,6 +19,9 @@ from .geometry import Camera
 from .ports import Frame
 
 RAW_FORMATS = ("h264", "hevc", "mjpeg")          # elementary streams: no timestamps of their own
+# a damaged raw stream can be parsed into more frames than were recorded (a flipped byte that looks like
+# a start code splits one): no pts file fits it then, --fps still does (off by a frame after a split)
+_SPLIT_FRAMES = " (if the recording is damaged, replay it with --fps N instead)"
 IMAGE_FORMATS = ("image2", "png_pipe", "jpeg_pipe", "bmp_pipe", "tiff_pipe", "webp_pipe", "gif")
 
 
@@ -78,7 +81,7 @@ class VideoReplay:
         self._container = None
         self._times = None
         self.packets = None
-        self.frames_total = self.frames_lost = 0
+        self.frames_total = self.frames_lost = self.frames_damaged = 0
 
     def __enter__(self):
         import av   # PyAV: python3-av on Raspberry Pi OS
@@ -142,7 +145,8 @@ class VideoReplay:
 
     def _decoded(self):
         """(index in the stream, frame) of every frame that decodes; a damaged packet is counted and
-        skipped, not the end of the stream.
+        skipped, not the end of the stream. A frame the decoder could only conceal (it flags it corrupt)
+        is counted too: it is measured, but what it shows is partly the decoder's guess.
 
         Raw streams carry no timestamps, so each packet is stamped with its index: a frame that comes
         out then knows its place even when frames before it were lost (exact for the I/P-only streams
@@ -153,7 +157,7 @@ class VideoReplay:
         stream = self._container.streams.video[0]
         stream.thread_type = "AUTO"
         raw = self._container.format.name in RAW_FORMATS
-        sent = out = failed = 0
+        sent = out = failed = damaged = 0
         reorders = False            # B-frames: frames leave the decoder out of packet order
         prev = -1
         for packet in self._container.demux(stream):
@@ -177,18 +181,22 @@ class VideoReplay:
                     k = prev = frame.pts
                 else:
                     k = out
+                damaged += bool(getattr(frame, "is_corrupt", False))      # the decoder flags it
                 yield k, frame
                 out += 1
         self.frames_total, self.frames_lost = max(sent, out), max(sent, out) - out
+        self.frames_damaged = damaged
         if out == 0:
             raise VideoError(f"video {str(self.path)!r} holds no decodable frames")
 
     def _report_losses(self):
-        lost, total = self.frames_lost, self.frames_total
-        if lost:
-            msg = (f"{lost} of {total} frames could not be decoded (a damaged recording); the odometry "
-                   "measured or bridged across them")
-            self.warnings.append(msg)
+        lost, damaged, total = self.frames_lost, self.frames_damaged, self.frames_total
+        if lost or damaged:
+            what = " and ".join(part for part in (
+                f"{lost} could not be decoded" if lost else "",
+                f"{damaged} decoded with errors" if damaged else "") if part)
+            self.warnings.append(f"{lost + damaged} of {total} frames are damaged ({what}): a damaged "
+                                 "recording; the odometry measured or bridged across them")
         if self._times is not None and len(self._times) > total:
             msg = (f"pts file has {len(self._times)} timestamps but the video has {total} frames; the extra "
                    "timestamps were ignored. If the recording lost frames inside rather than at its end, "
@@ -211,13 +219,13 @@ class VideoReplay:
             return
         if self.packets > len(self._times):
             raise VideoError(f"{self.path.name} has {self.packets} frames but {pts_path.name} only "
-                             f"{len(self._times)} timestamps; is it the right pts file?")
+                             f"{len(self._times)} timestamps; is it the right pts file?{_SPLIT_FRAMES}")
 
     def _time_of(self, frame, n: int) -> float:
         if self._times is not None:
             if n >= len(self._times):
                 raise VideoError(f"{self.path.name} has more frames than the {len(self._times)} "
-                                 f"timestamps of its pts file; is it the right pts file?")
+                                 f"timestamps of its pts file; is it the right pts file?{_SPLIT_FRAMES}")
             return float(self._times[n])
         if self.fps is not None:
             return n / self.fps

@@ -1,4 +1,5 @@
 import json
+import time
 
 import pytest
 
@@ -33,6 +34,41 @@ def crawlerd(capsys):
         return rc, (json.loads(lines[-1]) if lines else None), err
 
     return run
+
+
+@pytest.fixture(scope="session")
+def texture():
+    """A flat random wall for exactly known synthetic motion (test_odometry.view)."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(7)
+    tex = cv2.GaussianBlur((rng.random((6000, 640)) * 255).astype(np.float32), (0, 0), 1.3)
+    return cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+
+
+def sim_daemon(*args):
+    """`crawlerd --sim --no-publish ARGS` as a real process (no user config)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, CRAWLERD_CONFIG=os.devnull)
+    return subprocess.Popen([sys.executable, "-m", "crawler", "--sim", "--no-publish", *map(str, args)],
+                            cwd=Path(__file__).resolve().parents[1], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def stop_after(proc, seconds: float):
+    """SIGTERM after `seconds`: (the summary line, stderr); the daemon must exit 0."""
+    import signal
+
+    time.sleep(seconds)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    return json.loads(out.strip().splitlines()[-1]), err
 
 
 def free_port() -> int:

@@ -65,3 +65,16 @@ def test_patches_are_the_image_blocks_stacked(contiguous):
     got = flow.patches(roi, corners, 19)
     want = np.concatenate([roi[y:y + 19, x:x + 19] for x, y in corners])
     assert got.shape == (4 * 19, 19) and (got == want).all()
+
+
+def test_no_feature_on_or_beside_a_highlight_but_bright_grains_are_kept(pair):
+    a = pair[0].copy()
+    a[100:140, 60:110] = 255                        # a specular highlight: a saturated blob
+    pts = flow.detect(a, FlowParams(max_features=200), border_px=10)
+    near = (pts[:, 0] > 60 - 6) & (pts[:, 0] < 110 + 6) & (pts[:, 1] > 100 - 6) & (pts[:, 1] < 140 + 6)
+    assert len(pts) > 50 and not near.any()
+    grains = pair[0].copy()
+    grains[::17, ::13] = 255                        # clipped bright grains of a lit wall: no mask
+    plain = flow.detect(pair[0], FlowParams(max_features=200), border_px=10)
+    kept = flow.detect(grains, FlowParams(max_features=200), border_px=10)
+    assert len(kept) >= 0.9 * len(plain)

@@ -4,11 +4,12 @@ import json
 import threading
 import time
 
+import numpy as np
 import pytest
 
 from conftest import wait_for
 from crawler.commands import CommandQueue, CommandRefused, number
-from crawler.link import ZenohLink, make_zenoh_config
+from crawler.link import ZenohLink, ZenohOutput, make_zenoh_config
 from crawler.errors import BadConfig
 
 
@@ -183,3 +184,28 @@ def test_publishing_resumes_when_the_operator_comes_back(link, zenoh_pair):
         assert got2[-1]["seq"] > got1[-1]["seq"]
     finally:
         second.close()
+
+
+def test_the_publish_rate_is_kept_on_a_schedule(link):
+    # 60 fps with +-3 ms of jitter thinned to 30 Hz: every other frame, not every third
+    now = [0.0]
+
+    class Run:
+        def describe(self, est):
+            return est
+
+        def status(self):
+            return {"name": "c1"}
+
+    out = ZenohOutput(link, publish_hz=30.0, status_hz=1.0, clock=lambda: now[0])
+    rng = np.random.default_rng(0)
+    start = link.seq
+    for i in range(600):                              # 10 s
+        now[0] = i / 60 + rng.uniform(-0.003, 0.003)
+        out.write(None, {"t_s": now[0], "distance_m": 0.0, "speed_m_s": 0.0}, Run())
+    assert 297 <= link.seq - start <= 301
+    now[0] += 5.0                                     # a stalled camera: no burst after it
+    for i in range(6):
+        out.write(None, {"t_s": now[0], "distance_m": 0.0, "speed_m_s": 0.0}, Run())
+        now[0] += 1 / 60
+    assert link.seq - start <= 301 + 3

@@ -91,6 +91,10 @@ def test_fleet_state_bridged_slip_footage_and_observations_of_a_run():
                                                                              "upstream", "r1")
     events = f.ingest("a", "distance", est(2, 1.1, tracking=False, v=None, bridged=True, source="model"), now=0.1)
     assert kinds(events) == [("a", "lost"), ("a", "bridged")] and "motion model from 1.100 m" in events[1].detail
+    wheel = FleetState()
+    wheel.ingest("w", "distance", est(1, 1.0, source="fused"), now=0.0)
+    events = wheel.ingest("w", "distance", est(2, 1.1, tracking=False, bridged=True, source="wheel"), now=0.1)
+    assert "carried by the wheel from 1.100 m" in events[-1].detail
     assert kinds(f.ingest("a", "distance", est(3, 1.2, tracking=False, bridged=True), now=0.2)) == []
     assert kinds(f.ingest("a", "distance", est(4, 1.3, slip=True, source="fused"), now=0.3)) == [
         ("a", "tracking"), ("a", "slip")]
@@ -122,7 +126,7 @@ def test_the_live_table_shows_every_column_and_the_loud_marks():
     f.ingest("crawler2", "status", {"fps": 30.0, "led_level": 0.4, "source": "camera",
                                     "last_error": "camera: frame timeout"}, 2.8)
     f.ingest("crawler3", "distance", est(3, 1.0, slip=True, source="fused"), 0.0)
-    f.ingest("crawler4", "distance", est(3, 2.0, slip=True, source="fused"), 2.9)
+    f.ingest("crawler4", "distance", est(3, 2.0, slip=True, source="fused", unmeasured_s=4.2), 2.9)
     f.tick(3.0)
     text = render_text(render(f, 3.0, key="crawler/*", prompt="mark crawler1: > FL_"), width=220)
     lines = text.splitlines()
@@ -137,7 +141,7 @@ def test_the_live_table_shows_every_column_and_the_loud_marks():
     assert rows["crawler2"].split()[:5] == ["crawler2", "3.2100", "±0.200", "-", "-"]
     assert rows["crawler2"].rstrip().endswith("!! LOST 0.2 s, BRIDGED") and " model " in rows["crawler2"]
     assert rows["crawler3"].rstrip().endswith("!! SILENT: no message for 3.0 s")
-    assert rows["crawler4"].rstrip().endswith("!! SLIP") and " fused " in rows["crawler4"]
+    assert rows["crawler4"].rstrip().endswith("!! SLIP, 4.2 s UNMEASURED (restart)") and " fused " in rows["crawler4"]
     assert "crawler2: last error: camera: frame timeout" in text
     assert "crawler1 #1 FL @3 39.4 ft" in text                                # the observations under the table
     assert "mark crawler1: > FL_" in text
@@ -386,7 +390,7 @@ def test_watch_records_two_crawlers_marks_silent_lost_bridged(fleet, tmp_path, c
     lines = out.splitlines()                        # not a terminal: one plain line per update
     assert any(" c1 distance seq=" in ln and "sigma_m=" in ln for ln in lines)
     assert any(ln.endswith("c2 SILENT liveliness token gone") for ln in lines)
-    assert any(" c1 BRIDGED distance carried by the motion model" in ln for ln in lines)
+    assert any(" c1 BRIDGED camera blind: distance carried by the motion model" in ln for ln in lines)
     assert "\x1b[" not in out
 
 

@@ -164,7 +164,7 @@ def test_the_plot_has_lines_sigma_band_shaded_stretches_and_observation_markers(
     lo, hi = band.get_paths()[0].vertices[:, 1].min(), band.get_paths()[0].vertices[:, 1].max()
     assert lo == pytest.approx(-0.004, abs=1e-3) and hi == pytest.approx(0.1 * 299 / 30 + 2 * 0.012, abs=1e-3)
     labels = [t.get_text() for t in ax_d.get_legend().get_texts()]
-    assert labels == ["alpha", "beta", "±2σ", "bridged (motion model)", "tracking lost (held)", "went silent",
+    assert labels == ["alpha", "beta", "±2σ", "bridged (wheel or motion model)", "tracking lost (held)", "went silent",
                       "observation (▶ start, ◀ finish)"]
     speed = next(a for a in ax_v.get_lines() if a.get_gid() == "speed:beta")
     assert np.isnan(speed.get_ydata()[110]) and speed.get_ydata()[50] == pytest.approx(0.2)
@@ -193,6 +193,8 @@ def _jsonl(tmp_path, records):
 
 def test_the_report_pairs_continuous_defects_and_embeds_the_plot(tmp_path, capsys):
     records = synthetic_records()
+    records.append({"t_unix": 5009.0, "name": "beta", "topic": "distance", "seq": 99, "t_s": 9.0, "distance_m": 1.8,
+                    "direction": "upstream"})
     records.append({"t_unix": 5010.0, "name": "beta", "topic": "observations", "id": 1, "run_id": "b",
                     "observed_t_unix": 4100.0, "t_s": 9.0, "distance_m": 1.8, "footage_m": 1.8, "unit": "ft",
                     "code": "DAE", "kind": "start", "clock": 6.0, "note": "<deposit> & more"})
@@ -213,6 +215,7 @@ def test_the_report_pairs_continuous_defects_and_embeds_the_plot(tmp_path, capsy
     assert out.strip().endswith("4 observation(s) of 2 crawler(s), 1 continuous defect(s) paired")
     page = (tmp_path / "r.html").read_text()
     assert "<h1>DN300 Main St</h1>" in page and page.count("<tr>") == 5
+    assert "Survey direction: " in page and "beta: upstream" in page
     assert "&lt;deposit&gt; &amp; more" in page and "<deposit>" not in page
     png = base64.b64decode(re.search(r"base64,([A-Za-z0-9+/=]+)", page).group(1))
     img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)

@@ -262,3 +262,12 @@ def test_realtime_replay_paces_frames_to_their_times_on_a_manual_clock(render_ru
     assert len(handed) == 61
     assert all(abs(wall - t) < 0.0045 for wall, t in handed)      # never early, at most one step late
     assert handed[-1][0] == pytest.approx(2.0, abs=0.005)
+
+
+def test_a_wheel_in_the_config_is_left_out_of_a_replay_and_said_so(render_run, crawlerd, tmp_path, caplog):
+    run = render_run("tilt0", tilt_deg=0, speed_m_s=0.2, **SHORT)
+    cfg = tmp_path / "wheel.toml"
+    cfg.write_text('[wheel]\nbackend = "evdev"\ndevice = "rotary@11"\ncounts_per_m = 1000\n')
+    rc, s, err = crawlerd("--replay", run["h264"], "--config", cfg, "--max-frames", 10)
+    assert rc == 0 and s["frames"] == 10
+    assert "[wheel] is not used in --replay" in caplog.text

@@ -98,8 +98,8 @@ def test_a_ros2_subscriber_on_loopback_sees_the_topic_the_tokens_and_the_message
     samples, tokens = [], []
     try:
         key = f"0/crawler1/odom/nav_msgs::msg::dds_::Odometry_/{TYPE_HASHES['jazzy']}"
-        sub = ros.declare_subscriber(key, lambda s: samples.append((s.payload.to_bytes(), s.attachment.to_bytes())))
-        graph = ros.liveliness().declare_subscriber("@ros2_lv/0/**", lambda s: tokens.append((str(s.key_expr),
+        _sub = ros.declare_subscriber(key, lambda s: samples.append((s.payload.to_bytes(), s.attachment.to_bytes())))
+        _graph = ros.liveliness().declare_subscriber("@ros2_lv/0/**", lambda s: tokens.append((str(s.key_expr),
                                                                                             s.kind)), history=True)
         odom = Ros2Odometry(daemon, "crawler1")
         assert odom.keyexpr == key and odom.topic == "/crawler1/odom"

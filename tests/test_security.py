@@ -109,7 +109,7 @@ def test_open_commands_are_warned_about_and_in_the_status(tmp_path):
         anon.close()
         proc.send_signal(signal.SIGTERM)
         out, err = proc.communicate(timeout=30)
-    assert "commands (cmd/reset, cmd/led) are open to any peer" in err
+    assert "commands (cmd/reset, cmd/led, cmd/zero, cmd/preset, cmd/units, cmd/direction, cmd/mark, cmd/observations) are open to any peer" in err
 
 
 @pytest.mark.parametrize("mutate,words", [

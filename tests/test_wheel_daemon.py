@@ -6,38 +6,22 @@ moves on while a killed daemon is down, and the truth counts from the run's star
 """
 
 import json
-import os
-import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from conftest import sim_daemon, stop_after
 
 
 def crawlerd(tmp_path, *extra):
-    env = dict(os.environ, CRAWLERD_CONFIG=os.devnull)
-    return subprocess.Popen([sys.executable, "-m", "crawler", "--sim", "--sim-wheel", "--sim-speed", "0.2",
-                             "--no-publish", "--state-dir", str(tmp_path / "state"), *extra], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-
-
-def stop(proc, after_s):
-    time.sleep(after_s)
-    proc.send_signal(signal.SIGTERM)
-    out, err = proc.communicate(timeout=60)
-    assert proc.returncode == 0, err
-    return json.loads(out.strip().splitlines()[-1]), err
+    return sim_daemon("--sim-wheel", "--sim-speed", "0.2", "--state-dir", tmp_path / "state", *extra)
 
 
 def test_the_wheel_carries_a_blind_stretch_is_calibrated_and_flags_slip(tmp_path):
     log = tmp_path / "run.jsonl"
     proc = crawlerd(tmp_path, "--sim-featureless", "0.3:0.5", "--sim-slip", "4:5", "--sim-wheel-scale", "1.03",
                     "--log", str(log))
-    summary, err = stop(proc, 7.5)
+    summary, err = stop_after(proc, 7.5)
     rows = [json.loads(line) for line in log.read_text().splitlines()]
     true = summary["sim_true_distance_m"]
     assert abs(summary["distance_m"] - true) <= 0.002 * true + 0.001          # 0.2 % of the path
@@ -48,8 +32,16 @@ def test_the_wheel_carries_a_blind_stretch_is_calibrated_and_flags_slip(tmp_path
     slip = [r["t_s"] for r in rows if r["slip"]]
     assert slip and "wheel slip" in err
     assert 3.0 < min(slip) and max(slip) < 5.5
-    during = [r["slip"] for r in rows if 4.4 <= r["t_s"] <= 4.6]
-    assert during and all(during)
+    # ...and flagged throughout, not now and then (where the second sits in frame time depends on
+    # when the camera started, later on a loaded machine)
+    runs, start = [], None
+    for r in rows:
+        if r["slip"] and start is None:
+            start = r["t_s"]
+        elif not r["slip"] and start is not None:
+            runs.append(r["t_s"] - start)
+            start = None
+    assert max(runs, default=0.0) >= 0.6
 
 
 def test_kill_9_and_restart_with_the_kernel_encoder_loses_at_most_a_centimetre(tmp_path):
@@ -58,7 +50,7 @@ def test_kill_9_and_restart_with_the_kernel_encoder_loses_at_most_a_centimetre(t
     proc.kill()                                   # no goodbye; the kernel keeps counting the wheel
     proc.communicate(timeout=30)
     time.sleep(1.5)                               # the crawler moves on: 0.3 m while nobody watches
-    summary, err = stop(crawlerd(tmp_path), 3.0)
+    summary, err = stop_after(crawlerd(tmp_path), 3.0)
     assert "resuming run" in err
     lost = summary["sim_true_distance_m"] - summary["distance_m"]
     assert summary["sim_true_distance_m"] > 1.0 and abs(lost) <= 0.01, summary

@@ -42,6 +42,7 @@ class Crawler:
     slip: bool = False                    # the wheel slips against the vision estimate
     basis: str | None = None              # distance.source: vision | fused | wheel | model
     wheel_distance_m: float | None = None
+    unmeasured_s: float = 0.0             # seconds of the run whose distance is not in distance_m (a restart)
     footage_m: float | None = None        # the footage counter: preset + distance since zero
     unit: str | None = None               # m | ft
     direction: str | None = None          # downstream | upstream
@@ -150,6 +151,7 @@ class FleetState:
         c.sigma_m, c.basis = get("sigma_m"), get("source", c.basis)
         c.quality, c.tracks, c.inliers = get("quality"), get("tracks"), get("inliers")
         c.wheel_distance_m = get("wheel_distance_m")
+        c.unmeasured_s = get("unmeasured_s") or 0.0
         c.footage_m, c.footage = get("footage_m", c.footage_m), get("footage", c.footage)
         c.unit, c.direction = get("unit", c.unit), get("direction", c.direction)
         self._new_run(c, get("run_id"))
@@ -157,7 +159,8 @@ class FleetState:
             self._tracking(c, bool(p["tracking"]), now, events)
         bridged, slip = bool(get("bridged", False)), bool(get("slip", False))
         if bridged and not c.bridged:
-            events.append(Event(c.name, "bridged", f"distance carried by the motion model from "
+            by = "the wheel" if c.basis == "wheel" else "the motion model"
+            events.append(Event(c.name, "bridged", f"camera blind: distance carried by {by} from "
                                                    f"{_fmt(c.distance_m)} m"))
         if slip and not c.slip:
             events.append(Event(c.name, "slip", f"wheel slipping at {_fmt(c.distance_m)} m"))

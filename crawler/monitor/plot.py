@@ -1,7 +1,7 @@
 """A record as a picture (matplotlib): distance and speed over time, one colour per crawler.
 
-The distance panel has the ±2 sigma band, the stretches the distance was carried by a motion model
-(bridged) and those it was held because tracking was lost, each shaded its own way, the observations
+The distance panel has the ±2 sigma band, the stretches the distance was carried by the wheel or
+a motion model (bridged) and those it was held because tracking was lost, each shaded its own way, the observations
 as markers and where a crawler went silent. series_from_records() is pure (records in, arrays out);
 plot_figure() builds a matplotlib Figure with the object API (no pyplot, no global state).
 """
@@ -169,7 +169,7 @@ def _legend(ax, series: dict):
     if any(np.isfinite(s.sigma).any() for s in series.values()):
         handles.append(Patch(color="0.5", alpha=0.2, label="±2σ"))
     if any(s.bridged.any() for s in series.values()):
-        handles.append(Patch(color=BRIDGED_COLOR, alpha=0.25, label="bridged (motion model)"))
+        handles.append(Patch(color=BRIDGED_COLOR, alpha=0.25, label="bridged (wheel or motion model)"))
     if any(s.lost_spans() for s in series.values()):
         handles.append(Patch(facecolor=LOST_COLOR, alpha=0.25, hatch="//", label="tracking lost (held)"))
     if any(s.silent_at for s in series.values()):

@@ -137,6 +137,15 @@ _HEADINGS = (("crawler", "crawler", ""), ("distance_m", "distance m", "n"), ("fo
              ("continuous", "continuous", ""), ("remarks", "remarks", ""), ("time", "time", ""))
 
 
+def _directions(records: list[dict]) -> dict:
+    """Each crawler's survey direction as its last distance message had it."""
+    out = {}
+    for r in records:
+        if r.get("topic") == "distance" and r.get("direction"):
+            out[r.get("name")] = r["direction"]
+    return out
+
+
 def _html(records: list[dict], rows: list[dict], title: str) -> str:
     esc = html.escape
     head = "".join(f"<th>{esc(text)}</th>" for _, text, _ in _HEADINGS)
@@ -156,6 +165,8 @@ def _html(records: list[dict], rows: list[dict], title: str) -> str:
     span = ""
     if records:
         span = f"{_local(min(r['t_unix'] for r in records))} to {_local(max(r['t_unix'] for r in records))}"
+    surveys = "; ".join(f"{name}: {d}" for name, d in sorted(_directions(records).items()))
+    surveys = f"<p>Survey direction: {esc(surveys)}</p>" if surveys else ""
     return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{esc(title)}</title>"
-            f"<style>{_STYLE}</style></head><body><h1>{esc(title)}</h1><p>{esc(span)}</p>"
+            f"<style>{_STYLE}</style></head><body><h1>{esc(title)}</h1><p>{esc(span)}</p>{surveys}"
             f"<h2>Observations</h2>{table}<h2>Distance and speed</h2>{plot}</body></html>\n")

@@ -47,6 +47,8 @@ def state_text(c: Crawler, now: float) -> tuple[str, str]:
         marks.append("SLIP")
     if c.source == "replay-fallback":
         marks.append("CAMERA FAILED, replaying")
+    if c.unmeasured_s:
+        marks.append(f"{c.unmeasured_s:.1f} s UNMEASURED (restart)")
     if marks:
         return "!! " + ", ".join(marks), ("lost" if c.tracking is False else "warn")
     if c.last_seen is None:
