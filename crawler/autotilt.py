@@ -67,7 +67,7 @@ class FixedTilt:
     def record(self, hop: Hop):
         pass
 
-    def closed(self):
+    def closed(self, continuous: bool, t_s: float):
         pass
 
     def remount(self):
@@ -91,6 +91,8 @@ class AutoTilt(FixedTilt):
         self._serial = None
         self._readings: list = []     # the current keyframe's parabolas (curvature, slope, at)
         self._frames = 0
+        self._break_t = -math.inf     # the first measured frame after lost frames
+        self._after_break = False
         self.steps = 0
 
     @property
@@ -119,9 +121,15 @@ class AutoTilt(FixedTilt):
 
     def record(self, hop: Hop):
         self._last = hop
+        if self._after_break:
+            self._break_t, self._after_break = hop.t_s, False
 
-    def closed(self):
-        """A new keyframe: the last measured step is closed, part of the epoch."""
+    def closed(self, continuous: bool, t_s: float):
+        """A new keyframe: the last measured step is closed, part of the epoch. One after lost
+        frames (a turn of the camera loses every track) starts what a step found later may span:
+        the steps before it were measured at the tilt before the turn, and its first step is the
+        gap's, which crawler/gaps.py bridges with the motion model."""
+        self._after_break = self._after_break or not continuous
         if self._last is not None:
             self.hops.append(self._last)
             del self.hops[:-self.p.max_hops]
@@ -136,7 +144,8 @@ class AutoTilt(FixedTilt):
         new = type(self.projection)(replace(m, tilt_rad=m.tilt_rad + self.tau))
         self.projection, self.field = new, JacobianField(self.camera, new, self.roi)
         self.tau = 0.0
-        extra = sum(self._measure_again(h, new) for h in self.hops + ([self._last] if self._last else []))
+        hops = [h for h in self.hops + [self._last] if h is not None and h.t_s != self._break_t]
+        extra = sum(self._measure_again(h, new) for h in hops)
         return new, extra
 
     # -- internals ----------------------------------------------------------------------------------
@@ -163,7 +172,7 @@ class AutoTilt(FixedTilt):
             self.tau = self.track.value - self.projection.mount.tilt_rad
             return
         self.steps += 1
-        self.hops = [h for h in self.hops if h.t_s >= began]     # before the step, the tilt was right
+        self.hops = [h for h in self.hops if h.t_s >= began and h.t_s > self._break_t]   # the tilt was right
         centre = self.projection.mount.tilt_rad + self.tau
         self.search = TiltSearch(centre, 3 * math.radians(self.p.tilt.step_sigma_deg))
         self.track = None

@@ -181,6 +181,7 @@ class GapBridge:
         if self._gap is not None and self._settling is None:
             gap_T = self._close_gap(est)
         elif self._settling is not None:
+            _remeasured(self._settling[1], est.remeasured_m)
             self._settling[1].append((est.t_s, est.distance_m))
             if est.t_s - self._settling[0] >= self.p.settle_s:
                 self._settle_or_reopen()
@@ -282,6 +283,17 @@ class GapBridge:
         if stop is not None:
             return self._travel(g, T)         # stopped, and still stopped
         return 0.5 * (g.v0 + v1) * T          # a constant acceleration over the gap
+
+
+def _remeasured(samples: list, gain_m: float):
+    """The odometer measured its steps since the fresh start again (a better tilt): the samples the
+    speed after the gap is taken from gain it too, in proportion to the distance each had covered
+    (a scale error), so that the correction is not read as speed."""
+    if not gain_m or len(samples) < 2:
+        return
+    d0, span = samples[0][1], samples[-1][1] - samples[0][1]
+    if span:
+        samples[:] = [(t, d + gain_m * (d - d0) / span) for t, d in samples]
 
 
 def _slope(ts, ds) -> float | None:

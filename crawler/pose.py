@@ -108,12 +108,13 @@ class PoseEstimator:
         xy = self.camera.normalise(px)
         self._serial += 1
         kf.pose = (self.tilt.field.at(xy), xy, self._serial)
-        self._closing = self._end if t_s == self._t else None
+        continuous = self._t is None or t_s == self._t    # the run's first, or on the frame just measured
+        self._closing = self._end if continuous else None
         self._predict(t_s)
         self.s[2:] = self.s[:2]
         self.P[2:, :] = self.P[:2, :]
         self.P[:, 2:] = self.P[:, :2]
-        self.tilt.closed()
+        self.tilt.closed(continuous, t_s)
 
     def measure(self, kf, c, t_s) -> PoseFix:
         """One measured frame: the odometer's consensus c (crawler/odometry.py) gives the keyframe's
