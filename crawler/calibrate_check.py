@@ -134,12 +134,12 @@ def height_verdict(configured, estimator, tol_m: float, fix: list) -> dict:
     est = height_search(type(proj), m, samples)
     sigma = abs(best[0] - best[1]) / 2.0 + 0.002 * h_cfg       # halves' disagreement; the grid's resolution
     out.update(estimated_m=round(est, 5), sigma_m=round(sigma, 5))
-    if sigma > tol_m:
-        out.update(verdict="UNDETERMINED", why=f"the pipe's curvature shows the height only to +-{1000 * sigma:.1f} mm "
-                   "in this recording; measure it with crawlerd calibrate drive")
-    elif abs(est - h_cfg) > tol_m + 2 * sigma:
+    if abs(est - h_cfg) > tol_m + 2 * sigma:       # off by more than its uncertainty can explain
         out["verdict"] = "FAIL"
         fix.append(f"mount.height_m={est:.4f}")
+    elif sigma > tol_m:
+        out.update(verdict="UNDETERMINED", why=f"the pipe's curvature shows the height only to +-{1000 * sigma:.1f} mm "
+                   "in this recording; measure it with crawlerd calibrate drive")
     else:
         out["verdict"] = "PASS"
     return out

@@ -271,9 +271,8 @@ class Daemon:
     def summary(self) -> dict:
         """The closing JSON line."""
         out = self.stats.summary(self.distance_m, self.odometer.lateral)
-        pose = self.odometer.pose.status()
-        if pose:
-            out["pose"] = pose
+        if self.odometer.pose.active:
+            out["pose"] = self.odometer.pose.status()
         for output in self.outputs:
             output.summarize(out)
         return out

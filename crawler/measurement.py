@@ -16,7 +16,7 @@ from .flow import FlowParams
 from .gaps import BridgeParams
 from .geometry import Camera, check_distortion, check_view, make_projection
 from .odometry import Odometer, OdometryParams
-from .pose import PoseEstimator, PoseParams
+from .pose import NullPose, PoseEstimator, PoseParams
 from .settings import CameraSettings, OdometrySettings, Settings
 
 
@@ -91,7 +91,7 @@ def build_odometer(settings: Settings, camera: Camera, default_roi) -> Odometer:
     check_geometry(settings, camera, roi)
     projection = make_projection(settings.odometry.method, settings.mount.mount())
     params = pose_params(settings)
-    pose = None if params is None else PoseEstimator(camera, projection, roi, params)
+    pose = NullPose(settings.mount.tilt_deg) if params is None else PoseEstimator(camera, projection, roi, params)
     return Odometer(camera, projection, roi, odometry_params(settings.odometry), pose=pose)
 
 

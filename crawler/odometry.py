@@ -298,8 +298,8 @@ class Odometer:
 
     def _accept(self, img, t_s, c: Consensus, n_tracked: int) -> Estimate:
         p, kf = self.params, self._kf
-        fix = self.pose.measure(kf, c, t_s)        # this frame's and the keyframe's pose (crawler/pose.py)
-        c.step, c.lat, kf.distance = c.step + fix.step_m, c.lat + fix.lat_m, kf.distance + fix.base_m
+        fix = self.pose.measure(kf, c, t_s)        # corrects c and kf.distance for the pose (crawler/pose.py)
+        self._speed.remeasured(fix.base_m)
         dt_prev = t_s - self._last_good_t
         delta = c.step - self._last_step
         if dt_prev > 0:
@@ -325,8 +325,9 @@ class Odometer:
         est = self._estimate(t_s, True, n_tracked, c.n_in, c.sigma, keyframe=False)
         est.continuous, est.remeasured_m = not self._blind_restart, fix.base_m
         self._blind_restart, self._unmeasured_since, self._after_dense, self._resumed = False, None, False, False
-        if fix.remount is not None:
-            self.remount(fix.remount)         # the pose estimate moved the tilt: a keyframe at the new one
+        if fix.remount is not None:           # the pose estimate moved the tilt: a keyframe at the new one;
+            self.remount(fix.remount)         # the speed the gates hold was measured at the old one
+            self._gates.v_ref = None
         if renew or fix.remount is not None:
             est.keyframe = self._new_keyframe(self._good_roi, t_s, owned=True)
         return est

@@ -60,6 +60,11 @@ NO_FIX = PoseFix()
 class NullPose:
     """The odometer without a pose estimate: the mount is what the configuration says."""
 
+    active = False
+
+    def __init__(self, tilt_deg: float | None = None):
+        self.tilt_deg = tilt_deg
+
     def keyframe(self, kf, px, t_s):
         pass
 
@@ -67,7 +72,7 @@ class NullPose:
         return NO_FIX
 
     def status(self) -> dict:
-        return {}
+        return {"tilt_deg": self.tilt_deg, "tilt_sigma_deg": None, "tilt_auto": False}
 
     def frame(self) -> dict:
         return {}
@@ -78,6 +83,8 @@ PITCH, HEIGHT, K_PITCH, K_HEIGHT = range(4)   # the state: this frame's pose, th
 
 class PoseEstimator:
     """Tilt, pitch and height of the camera, from the odometer's keyframe features and their tracks."""
+
+    active = True
 
     def __init__(self, camera, projection, roi, params: PoseParams | None = None):
         self.p = params or PoseParams()
@@ -142,21 +149,19 @@ class PoseEstimator:
             self.tilt.record(Hop(t_s, self.projection, xy_k, xy, moved[1].copy(), tuple(self.s),
                                  float(moved[1].mean()) + step, sens))
         remount, extra = self.tilt.remount()
+        c.step, c.lat, kf.distance = c.step + step, c.lat + lat, kf.distance + base + extra
         return PoseFix(step, lat, base + extra, remount)
 
     def status(self) -> dict:
         """What the daemon's status says of the pose (docs/topics.md)."""
         auto = self.tilt.auto
-        return {"tilt_deg": round(self.tilt_deg, 3),
-                "tilt_sigma_deg": round(math.degrees(self.tilt.sigma_rad), 3) if auto else None,
-                "tilt_auto": auto, "tilt_steps": self.tilt.steps,
-                "pitch_deg": round(math.degrees(self.s[PITCH]), 3),
-                "camera_height_m": round(self.height_m, 5)}
+        return {**self.frame(), "tilt_sigma_deg": _finite(math.degrees(self.tilt.sigma_rad), 3) if auto else None,
+                "tilt_auto": auto, "tilt_steps": self.tilt.steps}
 
     def frame(self) -> dict:
         """What each published estimate says of the pose: the camera's tilt, pitch and height now."""
-        return {"tilt_deg": round(self.tilt_deg, 3), "pitch_deg": round(math.degrees(self.s[PITCH]), 3),
-                "camera_height_m": round(self.height_m, 5)}
+        return {"tilt_deg": _finite(self.tilt_deg, 3), "pitch_deg": _finite(math.degrees(self.s[PITCH]), 3),
+                "camera_height_m": _finite(self.height_m, 5)}
 
     @property
     def tilt_deg(self) -> float:
@@ -254,6 +259,11 @@ class PoseEstimator:
         step = (mk[1] - mc[1]) * tau + mk[1] * pk - mc[1] * pc - mc[3] * dh
         lat = (mc[0] - mk[0]) * tau + mc[0] * pc - mk[0] * pk + mc[2] * dh
         return float(step), float(lat), float(mk[1] - mc[1])
+
+
+def _finite(v: float, digits: int) -> float | None:
+    """Published numbers are finite: a filter that diverged says nothing rather than NaN."""
+    return round(float(v), digits) if math.isfinite(v) else None
 
 
 def _c(a: np.ndarray) -> np.ndarray:

@@ -23,6 +23,8 @@ class TiltParams:
     step_sigma_deg: float = 5.0        # after a detected step the new tilt is this uncertain
     cusum_slack: float = 1.0           # readings within this many sigmas are noise...
     cusum_limit: float = 12.0          # ...and this much summed excess is a step
+    jump_deg: float = 3.0              # one keyframe's reading this far off is a step at once
+    outlier_sigmas: float = 3.0        # a reading this far off feeds the step detector only
     converged_deg: float = 0.1         # the estimate counts as found below this sigma
     memory: float = 0.98               # weight a keyframe's reading keeps per later reading (a creeping mount)
 
@@ -48,7 +50,11 @@ class StepDetector:
             self._quiet_since = t_s
         if max(self._up, self._down) <= self.p.cusum_limit:
             return None
-        began = self._quiet_since
+        return self.jumped(t_s)
+
+    def jumped(self, t_s: float) -> float:
+        """A step: when it began (the last time the sums stood at zero, or now)."""
+        began = t_s if self._quiet_since is None else self._quiet_since
         self.steps += 1
         self.reset()
         return began
@@ -77,12 +83,18 @@ class TiltTrack:
         when it began."""
         if not (math.isfinite(a) and math.isfinite(slope) and a > 0):
             return None
-        least = float(np.clip(at - slope / (2 * a), self.value - 0.05, self.value + 0.05))
+        raw = at - slope / (2 * a)
+        jump = math.radians(self.p.jump_deg)
+        least = float(np.clip(raw, self.value - jump, self.value + jump))
         if self._n >= 3:
+            if abs(raw - self.value) > jump:       # no mount creeps this far in one keyframe: a turn
+                return self.detector.jumped(t_s)
             nu = (least - self.value) / math.sqrt(self._scatter + self.var)
             began = self.detector.update(nu, t_s)
             if began is not None:
                 return began
+            if abs(nu) > self.p.outlier_sigmas:    # a step in the making is not averaged in
+                return None
         keep = self.p.memory
         u = at - self.ref
         self._a = keep * self._a + a
