@@ -174,7 +174,7 @@ class AutoTilt(FixedTilt):
         self.steps += 1
         self.hops = [h for h in self.hops if h.t_s >= began and h.t_s > self._break_t]   # the tilt was right
         centre = self.projection.mount.tilt_rad + self.tau
-        self.search = TiltSearch(centre, 3 * math.radians(self.p.tilt.step_sigma_deg))
+        self.search = TiltSearch(centre, 3 * math.radians(self.p.tilt.start_sigma_deg))   # a turn: anywhere
         self.track = None
 
     def _reading(self, xy_k, xy_c):
@@ -188,8 +188,11 @@ class AutoTilt(FixedTilt):
         return (c_lo + c_hi - 2 * c0) / (2 * h * h), (c_hi - c_lo) / (2 * h), t0
 
     def _measure_again(self, hop: Hop, new) -> float:
-        """The hop's step at the new mount (its pitch and height kept): the change in metres."""
+        """The hop's step at the new mount: the change in metres. Its pitch and height are kept when
+        the tilt moved little; read at a tilt far off, they were the tilt's error, and are dropped."""
         old = hop.projection
+        if far_apart(old, new, self.p.found_sigma_deg):
+            hop.pose = (0.0, 0.0, 0.0, 0.0)
         wk0, wk1 = old.to_wall(hop.xy_k), new.to_wall(hop.xy_k)
         wc0, wc1 = old.to_wall(hop.xy_c), new.to_wall(hop.xy_c)
         dy = hop.dy + (wk1[:, 1] - wk0[:, 1]) - (wc1[:, 1] - wc0[:, 1])
@@ -200,6 +203,11 @@ class AutoTilt(FixedTilt):
             return 0.0
         change, hop.d, hop.g, hop.projection, hop.dy = d - hop.d, d, float(jk[1] - jc[1]), new, dy
         return change
+
+
+def far_apart(a, b, deg: float) -> bool:
+    """Two projections' tilts more than deg apart."""
+    return abs(a.mount.tilt_rad - b.mount.tilt_rad) > math.radians(deg)
 
 
 def _not_stray(projection, xy_k, xy_c, k: float = 6.0) -> np.ndarray:

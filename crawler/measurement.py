@@ -115,7 +115,7 @@ def describe(settings: Settings, camera: Camera, default_roi) -> dict:
     return {
         "method": settings.odometry.method,
         "camera_height_m": round(mount.height_m, 6),
-        "tilt_deg": mount.tilt_deg,
+        "tilt_deg": settings.mount.tilt_deg if settings.mount.tilt_auto else mount.tilt_deg,   # "auto": from 0
         "frame": [camera.width, camera.height],
         "intrinsics": {k: round(getattr(camera, k), 3) for k in ("fx", "fy", "cx", "cy")},
         # thesis Eq. 3.1 at the crown, tilt ignored

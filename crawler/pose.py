@@ -28,7 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop
+from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop, far_apart
 
 
 @dataclass(frozen=True)
@@ -148,7 +148,10 @@ class PoseEstimator:
         if self.tilt.auto:
             self.tilt.record(Hop(t_s, self.projection, xy_k, xy, moved[1].copy(), tuple(self.s),
                                  float(moved[1].mean()) + step, sens))
+        old = self.projection
         remount, extra = self.tilt.remount()
+        if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
+            self._forget()                         # its pitch and height were the tilt's error
         c.step, c.lat, kf.distance = c.step + step, c.lat + lat, kf.distance + base + extra
         return PoseFix(step, lat, base + extra, remount)
 
@@ -172,6 +175,11 @@ class PoseEstimator:
         return self.projection.mount.height_m + float(self.s[HEIGHT])
 
     # -- the filter -------------------------------------------------------------------------------
+
+    def _forget(self):
+        """Back to the prior: no pitch or height known."""
+        self.s[:] = 0.0
+        self.P = np.tile(np.diag(self._sig ** 2), (2, 2))
 
     def _predict(self, t_s):
         dt = 0.0 if self._t is None else max(t_s - self._t, 0.0)
