@@ -74,6 +74,7 @@ class Counts:
     total: int
     split: dict[int, dict[str, int]] = field(default_factory=dict)
     stdout: str = ""
+    children: list["Counts"] = field(default_factory=list)    # forked processes, each on its own
 
     def stage(self, s: int) -> int:
         return sum(self.split.get(s, {}).values())
@@ -108,6 +109,9 @@ def run(args: list[str], cwd: Path = ROOT, quiet: bool = True) -> Counts:
             raise SystemExit(f"arm yardstick: python3.11 {' '.join(args)} failed (exit {p.returncode})\n{tail}")
         counts = parse_counts(Path(out.name).read_text())
         counts.stdout = p.stdout or ""
+        for child in sorted(Path(out.name).parent.glob(Path(out.name).name + ".*")):
+            counts.children.append(parse_counts(child.read_text()))
+            child.unlink()
         return counts
 
 

@@ -362,8 +362,7 @@ class Picamera2Source:
         """Y-plane views, valid until the next frame: with a MappedArray class they are the camera's
         own buffer (no copy), released back to the camera when the consumer asks for the next."""
         w, h = self.output_size
-        t0 = None
-        n = 0
+        t0, n, period_ns = None, 0, 1000 * self.plan.frame_duration_us
         while True:
             request = self._capture()
             try:
@@ -377,6 +376,8 @@ class Picamera2Source:
                 if t0 is None:
                     t0 = self.origin_ns = t_ns
                     self.first_sensor_ns = ts
+                else:       # numbered as the sensor counts: frames the camera dropped leave a gap
+                    n += max(1, round((ts - self.last_sensor_ns) / period_ns))
                 self.last_sensor_ns = ts
                 if self.mapped_array is not None:
                     with self.mapped_array(request, "main", write=False) as mapped:
@@ -385,7 +386,6 @@ class Picamera2Source:
                     yield Frame(n, (t_ns - t0) / 1e9, request.make_array("main")[:h, :w])
             finally:
                 request.release()
-            n += 1
 
     def _close(self):
         cam, self.cam = self.cam, None

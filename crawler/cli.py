@@ -33,7 +33,8 @@ DEFAULT_CONFIG = "/etc/crawler/crawlerd.toml"
 _log = logging.getLogger(PROG)
 
 # flag -> the settings key it sets (the flag's value, typed by argparse)
-FLAG_KEYS = {"method": "odometry.method", "tilt": "mount.tilt_deg", "state_dir": "state.directory"}
+FLAG_KEYS = {"method": "odometry.method", "tilt": "mount.tilt_deg", "state_dir": "state.directory",
+             "workers": "odometry.workers"}
 
 
 def tilt_value(text: str):
@@ -101,6 +102,8 @@ def build_parser() -> argparse.ArgumentParser:
     cfg.add_argument("--tilt", type=tilt_value, metavar="DEG|auto",
                      help='= --set mount.tilt_deg=DEG; "auto": estimated from the flow')
     cfg.add_argument("--state-dir", metavar="DIR", help="= --set state.directory=DIR (checkpoint)")
+    cfg.add_argument("--workers", type=_positive_int, metavar="N",
+                     help="= --set odometry.workers=N: processes that track frames (1: this one; 4: a Pi 2's cores)")
     rep = p.add_argument_group("replay")
     rep.add_argument("--pts", metavar="FILE", help="frame times: rpicam-vid --save-pts or picamera2 pts file")
     rep.add_argument("--fps", type=_frame_rate, metavar="N", help="frame times for a raw stream without a pts file")

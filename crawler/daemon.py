@@ -12,6 +12,7 @@ import logging
 import math
 import time
 import uuid
+from collections import deque
 
 from .errors import CrawlerError
 from .distance import DistanceChain
@@ -35,6 +36,13 @@ def new_run_id() -> str:
     return uuid.uuid4().hex[:12]
 
 
+def measure_serially(odometer: Odometer, frames):
+    """(frame, estimate) of each frame as it comes, in this process ([odometry] workers = 1; the
+    pipeline of crawler/workers.py yields the same pairs, a few frames later)."""
+    for frame in frames:
+        yield frame, odometer.update(frame.gray, frame.t_s)
+
+
 def _resumed_inspection(resume: dict | None, fresh: Inspection) -> Inspection:
     """The footage counter and observations the checkpoint kept, else a fresh start."""
     if not resume or "inspection" not in resume:
@@ -53,9 +61,11 @@ class Daemon:
     def __init__(self, source, odometer: Odometer, *, name: str, leds=None, outputs=(),
                  commands: CommandQueue | None = None, resume: dict | None = None,
                  inspection: Inspection | None = None, chain: DistanceChain | None = None, wheel=None,
-                 clock=time.monotonic, stop=lambda: False, max_frames: int | None = None, restart=None):
+                 clock=time.monotonic, stop=lambda: False, max_frames: int | None = None, restart=None,
+                 measure=None):
         self.source = source
         self.odometer = odometer
+        self.measure = measure or (lambda frames: measure_serially(odometer, frames))
         self.name = name
         self.leds = leds or NoLeds()
         self.outputs = list(outputs)
@@ -77,6 +87,9 @@ class Daemon:
         self.started = 0.0
         self.last_error: str | None = None
         self._frame_times: list[float] = []
+        self._drops: deque[int] = deque(maxlen=FPS_WINDOW)   # frames the source dropped before each
+        self._last_index: int | None = None
+        self._received = 0.0                  # when the newest frame came from the source
         self._last_est = None
 
     # -- what outputs may ask (ports.Run) -------------------------------------------------------------
@@ -114,6 +127,7 @@ class Daemon:
         out = {
             "name": self.name, "source": self.source.kind, "source_detail": self.source.description,
             "fps": round(fps, 2), "frames": self.stats.frames,
+            "dropped_frames": self.stats.dropped, "drop_rate": self._drop_rate(),
             "tracks": est.inliers if est else 0, "tracking": bool(est and est.tracking),
             "distance_m": round(self.distance_m, 6),
             "led_level": round(float(self.leds.level), 3),
@@ -190,10 +204,10 @@ class Daemon:
             output.start(self)
         self.leds.on()
         try:
-            for frame in self.source.frames():
+            for frame, est in self.measure(self._timed(self.source.frames())):
                 if self.stop():                   # a stop signal during start-up: no frame at all
                     break
-                self._step(frame)
+                self._step(frame, est)
                 if self.stop() or (self.max_frames and self.stats.frames >= self.max_frames):
                     break
         except CrawlerError as exc:
@@ -205,10 +219,30 @@ class Daemon:
             self._last_words()
         return self.stats
 
-    def _step(self, frame):
-        t0 = time.perf_counter()
-        raw = self._measure(frame)
-        est = self.chain.update(raw, self.wheel.read())
+    def _timed(self, frames):
+        """The source's frames, noting when each came (the loop's latency counts from there)."""
+        for frame in frames:
+            self._received = time.perf_counter()
+            if self.restart is not None and self.stats.frames == 0 and self.restart.open:
+                self._begin_restart(frame.t_s)
+            yield frame
+
+    def _count_drops(self, index: int):
+        """Gaps in the source's numbering: frames it dropped (the loop was late) or lost."""
+        gap = 0 if self._last_index is None else max(0, index - self._last_index - 1)
+        self._last_index = index
+        self._drops.append(gap)
+        self.stats.dropped += gap
+
+    def _drop_rate(self) -> float:
+        """The share of the source's frames dropped over the last FPS_WINDOW measured ones."""
+        dropped = sum(self._drops)
+        return round(dropped / (len(self._drops) + dropped), 4) if self._drops else 0.0
+
+    def _step(self, frame, measured):
+        self._observe_restart(measured)
+        est = self.chain.update(measured, self.wheel.read())
+        self._count_drops(frame.index)
         self._published_m = est.distance_m
         if self.odometer.reference_seq != (self._reference_at or (None,))[0]:
             self._reference_at = (self.odometer.reference_seq, est.distance_m)
@@ -229,23 +263,24 @@ class Daemon:
         self.commands.drain(self.handle)
         for output in self.outputs:
             output.write(frame, est, self)
-        self.stats.loop.add((time.perf_counter() - t0) * 1000.0)
+        self.stats.loop.add((time.perf_counter() - self._received) * 1000.0)
 
-    def _measure(self, frame):
-        """The odometer's estimate of this frame; across a restart, measured against the saved frame."""
+    def _begin_restart(self, t_s: float):
+        """Before the first frame is measured: the odometer starts from the frame saved before the restart."""
+        self.restart.begin(self.odometer, t_s)
+        if not self.restart.open:
+            self._restart_settled(self.restart)
+
+    def _observe_restart(self, raw):
+        """Across a restart the first frames are measured against the saved one; the gap settles."""
         gap = self.restart
-        if gap is not None and self.stats.frames == 0 and gap.open:
-            gap.begin(self.odometer, frame.t_s)
-            if not gap.open:
-                self._restart_settled(gap)
-        raw = self.odometer.update(frame.gray, frame.t_s)
-        if gap is not None and gap.open:
-            shift = gap.observe(raw)
-            if shift:
-                self.chain.bridge.offset_m += shift
-            if not gap.open:
-                self._restart_settled(gap)
-        return raw
+        if gap is None or not gap.open:
+            return
+        shift = gap.observe(raw)
+        if shift:
+            self.chain.bridge.offset_m += shift
+        if not gap.open:
+            self._restart_settled(gap)
 
     def _restart_settled(self, gap):
         if gap.state == "measured":

@@ -60,3 +60,14 @@ def find_features(img: np.ndarray, motion_rows: float, params, border_px: int) -
     pts = flow.detect(img[top:top + band], params.flow, border_px)
     pts[:, 1] += top
     return pts
+
+
+def track_visible(kf, img, step: float, lat: float, view: tuple, params) -> tuple:
+    """The features of keyframe `kf` (its img, pts, model) that should be inside the view boxes
+    after this axial and lateral step, tracked into img from where the model puts them:
+    (indices, positions in img, how many should be visible). The Odometer's tracker port; a worker
+    process (crawler/workers.py) runs the same function on the keyframe it was sent."""
+    guess = kf.pts + kf.model.dot(np.float32([step, step * step, lat])).reshape(-1, 2)
+    idx = flow.within(guess, *view).nonzero()[0]
+    pts1, ok, _ = flow.track(kf.img, img, kf.pts.take(idx, 0), guess.take(idx, 0), params)
+    return idx.compress(ok), pts1.compress(ok, 0), len(idx)     # ok: inside the image too

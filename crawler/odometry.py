@@ -25,7 +25,7 @@ from .dense import DenseShift, centre_jacobian, window_jacobian
 from .estimate import Estimate
 from .gates import FrameGates, SpreadGate, reacquired
 from .geometry import Camera, Projection
-from .keyframe import Keyframe, find_features, motion_model
+from .keyframe import Keyframe, find_features, motion_model, track_visible
 from .odometry_params import OdometryParams
 from .pose import NullPose
 
@@ -34,7 +34,7 @@ class Odometer:
     """Turns a stream of grey frames into distance, speed, lateral motion and a quality figure."""
 
     def __init__(self, camera: Camera, projection: Projection, roi, params: OdometryParams | None = None,
-                 pose=None):
+                 tracker=track_visible, pose=None):
         self.camera = camera
         self.pose = pose or NullPose()     # crawler/pose.py: the camera's tilt, pitch and height
         self.roi = tuple(int(v) for v in roi)
@@ -45,7 +45,7 @@ class Odometer:
         b = self._border
         # where a guess must fall for the feature to be tracked, as a box's centre and half-size
         mid = np.float32([(w - 1) / 2.0, (h - 1) / 2.0])
-        self._view, self._views = (mid, mid - b), {}   # ...and tiled for n points (cheaper numpy)
+        self.view, self._views = (mid, mid - b), {}    # ...and tiled for n points (cheaper numpy)
         self.remount(projection)
         lvl = self.params.flow.coarse_level
         self._coarse_scale = float(2 ** lvl)
@@ -54,6 +54,7 @@ class Odometer:
         self._rs = camera.readout_s > 0
         self._dense = DenseShift((h, w), self.params.dense)
         self.reference_seq = 0     # counts new references, so a writer knows when to save one
+        self.tracker = tracker     # keyframe.track_visible here, or what crawler/workers.py tracked
         self.reset()
 
     # -- public -------------------------------------------------------------------------------------
@@ -114,9 +115,7 @@ class Odometer:
     def reference(self):
         """(ROI image, distance, lateral) of the last tracked frame, or None: what a restarted
         daemon measures its first frames against (the image is the odometer's own copy)."""
-        if self._good_roi is None:
-            return None
-        return self._good_roi, *self._good_at
+        return None if self._good_roi is None else (self._good_roi, *self._good_at)
 
     def resume_from(self, img: np.ndarray, distance: float, lateral: float, t_s: float) -> bool:
         """Start from a saved reference (a restart): its image becomes the keyframe, at its distance.
@@ -130,6 +129,15 @@ class Odometer:
         self.lost_frames = 1          # the frames while the daemon was down are lost ones
         self._resumed = True
         return True
+
+    @property
+    def keyframe(self) -> Keyframe | None:
+        """The keyframe frames are measured against now (None: none yet, or lost)."""
+        return self._kf
+
+    def guess(self, t_s: float) -> tuple[float, float]:
+        """(step, lateral) from the keyframe that constant velocity predicts at t_s: tracking starts there."""
+        return self._last_step + self._velocity * (t_s - self._last_good_t), self._last_lat
 
     @property
     def tracked_points(self) -> np.ndarray:
@@ -179,9 +187,7 @@ class Odometer:
         self._prev_pts = self._kf.pts
         self._prev_origin = (self._kf, slice(None))
         self._jv = self._kf.rows_per_m
-        self._last_step = 0.0
-        self._last_lat = 0.0
-        self._last_good_t = t_s
+        self._last_step, self._last_lat, self._last_good_t = 0.0, 0.0, t_s
         self._good_roi, self._good_coarse = img, None
         self._good_at, self.reference_seq = (self.distance, self.lateral), self.reference_seq + 1
         return True
@@ -203,12 +209,8 @@ class Odometer:
 
     def _view_of(self, n: int) -> tuple:
         if n not in self._views:
-            self._views[n] = tuple(np.tile(a, (n, 1)) for a in self._view)
+            self._views[n] = tuple(np.tile(a, (n, 1)) for a in self.view)
         return self._views[n]
-
-    def _predict(self, step: float, lat: float) -> np.ndarray:
-        """Where the keyframe's features should be after this axial and lateral step (ROI px)."""
-        return self._kf.pts + self._kf.model.dot(np.float32([step, step * step, lat])).reshape(-1, 2)
 
     def _coarse_guess(self, img, t_s):
         """(step, lateral) from a phase correlation against the last tracked frame, or None.
@@ -236,16 +238,12 @@ class Odometer:
     def _track(self, img, step_guess, lat_guess):
         """Track the keyframe's features that should be visible: (indices, positions, n visible)."""
         kf = self._kf
-        guess = self._predict(step_guess, lat_guess)
-        idx = flow.within(guess, *self._view_of(len(guess))).nonzero()[0]
-        pts1, ok, _ = flow.track(kf.img, img, kf.pts.take(idx, 0), guess.take(idx, 0), self.params.flow)
-        return idx.compress(ok), pts1.compress(ok, 0), len(idx)     # ok: inside the image too
+        return self.tracker(kf, img, step_guess, lat_guess, self._view_of(kf.n0), self.params.flow)
 
     def _track_guessed(self, img, t_s):
         """Constant velocity first; if most features are then lost, the global shift."""
         p = self.params
-        guess = (self._last_step + self._velocity * (t_s - self._last_good_t), self._last_lat)
-        idx, pts1, n_visible = self._track(img, *guess)
+        idx, pts1, n_visible = self._track(img, *self.guess(t_s))
         if len(idx) < max(p.min_tracks, p.retry_share * n_visible) or self.lost_frames:
             coarse = self._coarse_guess(img, t_s)
             if coarse is not None:

@@ -15,7 +15,10 @@ import numpy as np
 
 @dataclass
 class Frame:
-    """One grey frame: the Y plane (a view; copy it to keep it) and its sensor time in seconds."""
+    """One grey frame: the Y plane (a view; copy it to keep it) and its sensor time in seconds.
+
+    `index` numbers the source's own frames (the sensor's, the recording's), so a gap is frames the
+    source dropped or lost before the loop saw them (the status's `dropped_frames`)."""
 
     index: int
     t_s: float

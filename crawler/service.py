@@ -121,6 +121,7 @@ class Service:
         self.source = self._open_source(resume)
         stack.push(self.source)         # entered already (so a camera can fall back): register its exit
         self.odometer = build_odometer(s, self.source.camera, self.source.default_roi)
+        self.pool = stack.enter_context(self._pool()) if s.odometry.workers > 1 else None
         self.leds = stack.enter_context(self._leds())
         self.wheel = stack.enter_context(self._wheel())
         outputs = [stack.enter_context(out) for out in self._outputs()]
@@ -128,7 +129,15 @@ class Service:
         self.daemon = Daemon(self.source, self.odometer, name=s.name, leds=self.leds, outputs=outputs,
                              commands=self.commands, resume=resume, inspection=fresh,
                              chain=self._chain(resume), wheel=self.wheel, restart=self._restart(resume),
-                             clock=self.hw.clock, stop=self.stop, max_frames=self.options.max_frames)
+                             clock=self.hw.clock, stop=self.stop, max_frames=self.options.max_frames,
+                             measure=self.pool.measure if self.pool else None)
+
+    def _pool(self):
+        """[odometry] workers > 1: tracking processes, forked before Zenoh opens its threads."""
+        from .workers import TrackerPool
+
+        cam = self.source.camera
+        return TrackerPool(self.odometer, (cam.height, cam.width), self.settings.odometry.workers)
 
     def _restart(self, resume: dict | None):
         """A resumed run's downtime, with the frame to measure it against when one was saved."""
@@ -229,6 +238,10 @@ class Service:
             fps = o.fps or (30.0 if self.mode is Mode.REPLAY else s.camera.fps)
             outs.append(Annotator(o.annotate, self.odometer, fps=fps, pipe_id=s.inspection.pipe_id))
         outs.append(Progress())
+        if self.pool is not None:
+            from .workers import WorkersReport
+
+            outs.append(WorkersReport(self.pool))
         if isinstance(self.source, SimSource):
             outs.append(self.source.truth)
         if s.leds.auto_brightness:

@@ -112,6 +112,7 @@ class OdometrySettings:
     pitch_jitter_deg: float = _f(0.25, between(0, 10))    # the car's pitching: part of sigma_m; the pose prior
     bounce_mm: float = _f(1.0, between(0, 50))            # the suspension's bounce: the pose prior
     estimate_pose: bool = _f(False)   # per-frame pitch and height from the tracks (crawler/pose.py)
+    workers: int = _f(1, between(1, 16))    # processes that share a frame's work (crawler/workers.py)
 
     def __post_init__(self):
         _check_fields(self, "odometry")

@@ -105,6 +105,16 @@ class SimSource(Picamera2Source):
         self.world = world
         self.sensor_clock_ns = world.clock
         self.truth = SimTruth(self, clock)
+        self.sensor_ns: dict[int, int] = {}     # SensorTimestamp of the recent frames, by index
+
+    def frames(self):
+        """The camera's frames, remembering each one's SensorTimestamp: a loop that measures frames a
+        few behind the camera ([odometry] workers) gets the truth of the frame it measured."""
+        for frame in super().frames():
+            self.sensor_ns[frame.index] = self.last_sensor_ns
+            if len(self.sensor_ns) > 64:
+                del self.sensor_ns[next(iter(self.sensor_ns))]
+            yield frame
 
     def encoder_device(self, options: SimOptions):
         """The kernel rotary-encoder device of the simulated wheel (hw_sim's fake evdev device),
@@ -126,12 +136,14 @@ class SimTruth(Output):
         self.source, self.clock = source, clock
         self._base_m = 0.0          # the measured distance when the footing was set
         self._t0_ns = clock.origin_ns if clock else None
+        self._last_ns = None        # SensorTimestamp of the frame measured last
 
     def start(self, run):
         if self._t0_ns is None:     # no origin kept: a resumed run starts where it was
             self._base_m = run.distance_m
 
     def write(self, frame, estimate, run):
+        self._last_ns = self.source.sensor_ns.get(frame.index, self.source.last_sensor_ns)
         if self._t0_ns is None:
             self._t0_ns = self.source.first_sensor_ns
             if self.clock is not None:
@@ -139,18 +151,17 @@ class SimTruth(Output):
                 self.clock.save()
 
     def reset(self, run):
-        self._base_m, self._t0_ns = 0.0, self.source.last_sensor_ns
+        self._base_m, self._t0_ns = 0.0, self._last_ns or self.source.last_sensor_ns
         if self.clock is not None:
             self.clock.origin_ns = self._t0_ns
             self.clock.save()
 
     @property
     def distance_m(self) -> float | None:
-        src = self.source
-        if src.last_sensor_ns is None or self._t0_ns is None:
+        if self._last_ns is None or self._t0_ns is None:
             return None
-        world = src.world
-        return self._base_m + world.true_distance_m(src.last_sensor_ns) - world.true_distance_m(self._t0_ns)
+        world = self.source.world
+        return self._base_m + world.true_distance_m(self._last_ns) - world.true_distance_m(self._t0_ns)
 
     def report(self, status):
         if self.distance_m is not None:

@@ -41,6 +41,7 @@ class RunStats:
 
     frames: int = 0
     tracked: int = 0
+    dropped: int = 0                  # frames the source dropped (the loop was late) or lost
     first_t: float | None = None
     last_t: float | None = None
     wall_s: float = 0.0
@@ -69,6 +70,8 @@ class RunStats:
             "fps_processed": round(self.frames / self.wall_s, 2) if self.wall_s > 0 else None,
             "tracking_share": round(self.tracked / self.frames, 4) if self.frames else 0.0,
             "lost_frames": self.frames - self.tracked,
+            "dropped_frames": self.dropped,
+            "drop_rate": round(self.dropped / (self.frames + self.dropped), 4) if self.frames else 0.0,
             "mean_quality": round(self.quality_sum / self.frames, 3) if self.frames else 0.0,
             "max_speed_m_s": round(self.max_speed, 4),
             "loop_ms": self.loop.as_dict(),

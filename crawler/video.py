@@ -61,7 +61,9 @@ class VideoReplay:
     """A recording played back as a FrameSource.
 
     `camera` describes its frames (from [camera], built by the caller); `default_roi` is the thesis's
-    square under the centre row. With `realtime`, frames are handed on no faster than their times.
+    square under the centre row. With `realtime`, frames are handed on at their times, as a camera
+    delivers them: never early, and a loop that falls behind gets the newest frame, the ones it was
+    too late for dropped (numbered gaps, counted in `frames_dropped`), never an ever longer backlog.
     """
 
     def __init__(self, path: str | Path, camera: Camera, pts: str | Path | None = None,
@@ -81,7 +83,7 @@ class VideoReplay:
         self._container = None
         self._times = None
         self.packets = None
-        self.frames_total = self.frames_lost = self.frames_damaged = 0
+        self.frames_total = self.frames_lost = self.frames_damaged = self.frames_dropped = 0
 
     def __enter__(self):
         import av   # PyAV: python3-av on Raspberry Pi OS
@@ -138,9 +140,12 @@ class VideoReplay:
                 raise VideoError(f"{self.path.name}: frame {k} time {t:.6f} s does not increase "
                                  f"({self.timing})")
             last = t
-            if self.pacer is not None:
-                self.pacer.wait(t - first)
+            if self.pacer is not None and not self.pacer.due(t - first):
+                self.frames_dropped += 1
+                continue
             yield Frame(k, t - first, _y_plane(frame))
+            if self.pacer is not None:
+                self.pacer.asked()
         self._report_losses()
 
     def _decoded(self):
@@ -191,6 +196,9 @@ class VideoReplay:
 
     def _report_losses(self):
         lost, damaged, total = self.frames_lost, self.frames_damaged, self.frames_total
+        if self.frames_dropped:
+            self.warnings.append(f"{self.frames_dropped} of {total} frames were dropped: the loop could not keep "
+                                 "up with --realtime (the odometry measured across them)")
         if lost or damaged:
             what = " and ".join(part for part in (
                 f"{lost} could not be decoded" if lost else "",
@@ -251,15 +259,25 @@ def _y_plane(frame) -> np.ndarray:
 
 
 class Pacer:
-    """Sleeps so frames are handed on no faster than their timestamps (replay --realtime)."""
+    """A recording's frames on the wall clock, as a camera makes them (replay --realtime)."""
 
     def __init__(self, clock=time.monotonic, sleep=time.sleep):
         self.clock, self.sleep = clock, sleep
-        self._t0 = None
+        self._t0 = self._prev = self._asked = None
 
-    def wait(self, t_s: float):
+    def asked(self):
+        """The loop asks for the next frame now: every frame due by now has come, the newest wins."""
+        self._asked = self.clock()
+
+    def due(self, t_s: float) -> bool:
+        """Sleep until frame time t_s, or False (drop it) if its successor had come when the loop
+        asked: a camera hands over the newest frame. Decoding never drops a frame, only the loop."""
         if self._t0 is None:
             self._t0 = self.clock() - t_s
+        prev, self._prev = self._prev, t_s
+        if self._asked is not None and prev is not None and self._asked >= self._t0 + 2 * t_s - prev:
+            return False
         delay = self._t0 + t_s - self.clock()
         if delay > 0:
             self.sleep(delay)
+        return True

@@ -300,7 +300,7 @@ def test_crawler_measures_the_true_distance_through_the_fake():
         for frame in src.frames():
             est = odo.update(frame.gray, frame.t_s)
             first = first or src.last_sensor_ns
-            if frame.index == 59:
+            if frame.index >= 59:           # a loaded machine may drop frame 59
                 break
         with src.cam.captured_request(wait=1.0) as r:
             assert r.get_metadata()["ScalerCrop"] == plan.scaler_crop   # the fake rendered what was planned

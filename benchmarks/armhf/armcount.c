@@ -12,6 +12,10 @@
  * are added atomically. At exit it writes lines "stage <n> <library> <instructions>" and
  * "total <instructions>" to $ARMCOUNT_OUT (or stderr).
  *
+ * Processes: qemu-user runs a forked child (multiprocessing's workers) in a fork of itself, plugin
+ * included. The child starts counting from zero (the parent's instructions before the fork stay the
+ * parent's) and writes its own counts to $ARMCOUNT_OUT.<pid>, so each process is counted apart.
+ *
  * Build: gcc -shared -fPIC -O2 -o armcount.so armcount.c
  * Run:   ARMCOUNT_OUT=counts.txt qemu-arm -plugin ./armcount.so -L ROOT ROOT/usr/bin/python3.11 ...
  */
@@ -21,6 +25,7 @@
 #include <string.h>
 #include <stddef.h>
 #include <pthread.h>
+#include <unistd.h>
 
 /* --- from qemu-plugin.h (API version 1) --- */
 typedef uint64_t qemu_plugin_id_t;
@@ -33,10 +38,13 @@ typedef void (*qemu_plugin_udata_cb_t)(qemu_plugin_id_t id, void *userdata);
 typedef void (*qemu_plugin_vcpu_syscall_cb_t)(qemu_plugin_id_t id, unsigned int vcpu_index, int64_t num,
                                               uint64_t a1, uint64_t a2, uint64_t a3, uint64_t a4,
                                               uint64_t a5, uint64_t a6, uint64_t a7, uint64_t a8);
+typedef void (*qemu_plugin_vcpu_syscall_ret_cb_t)(qemu_plugin_id_t id, unsigned int vcpu_idx, int64_t num,
+                                                  int64_t ret);
 void qemu_plugin_register_vcpu_tb_trans_cb(qemu_plugin_id_t id, qemu_plugin_vcpu_tb_trans_cb_t cb);
 void qemu_plugin_register_vcpu_tb_exec_cb(struct qemu_plugin_tb *tb, qemu_plugin_vcpu_udata_cb_t cb,
                                           enum qemu_plugin_cb_flags flags, void *userdata);
 void qemu_plugin_register_vcpu_syscall_cb(qemu_plugin_id_t id, qemu_plugin_vcpu_syscall_cb_t cb);
+void qemu_plugin_register_vcpu_syscall_ret_cb(qemu_plugin_id_t id, qemu_plugin_vcpu_syscall_ret_cb_t cb);
 void qemu_plugin_register_atexit_cb(qemu_plugin_id_t id, qemu_plugin_udata_cb_t cb, void *userdata);
 size_t qemu_plugin_tb_n_insns(const struct qemu_plugin_tb *tb);
 struct qemu_plugin_insn *qemu_plugin_tb_get_insn(const struct qemu_plugin_tb *tb, size_t idx);
@@ -47,6 +55,8 @@ __attribute__((visibility("default"))) int qemu_plugin_version = 1;
 #define ARMCOUNT_SYSCALL 0xC0DE   /* no such ARM system call; below the ARM-private 0xf0000 range */
 /* ARM EABI calls that change the memory map: munmap, mremap, mprotect, mmap2 */
 #define IS_MAP_CALL(n) ((n) == 91 || (n) == 163 || (n) == 125 || (n) == 192)
+/* ARM EABI calls that can make a process: fork, clone, vfork */
+#define IS_FORK_CALL(n) ((n) == 2 || (n) == 120 || (n) == 190)
 #define MAX_STAGES 64
 #define MAX_LIBS 1024                          /* OpenCV alone pulls in ~150 libraries */
 
@@ -61,6 +71,8 @@ static struct mapping *maps;
 static size_t n_maps;
 static int maps_stale = 1;                     /* the guest mapped or unmapped memory since */
 static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
+static pid_t counted_pid;                      /* the process these counts belong to */
+static int forked;                             /* this process is a fork of the one qemu started */
 
 static unsigned lib_index(const char *name)
 {
@@ -149,10 +161,29 @@ static void on_syscall(qemu_plugin_id_t id, unsigned int vcpu, int64_t num, uint
         __atomic_store_n(&maps_stale, 1, __ATOMIC_RELAXED);
 }
 
+/* A fork or clone returned 0 in a new process (a thread keeps its pid): count it from zero. */
+static void on_syscall_ret(qemu_plugin_id_t id, unsigned int vcpu, int64_t num, int64_t ret)
+{
+    if (!IS_FORK_CALL(num) || ret != 0 || getpid() == counted_pid)
+        return;
+    counted_pid = getpid();
+    forked = 1;
+    pthread_mutex_init(&lock, NULL);           /* another thread may have held it at the fork */
+    memset(counts, 0, sizeof counts);
+}
+
 static void write_counts(qemu_plugin_id_t id, void *p)
 {
-    const char *path = getenv("ARMCOUNT_OUT");
-    FILE *f = path ? fopen(path, "w") : stderr;
+    const char *out = getenv("ARMCOUNT_OUT");
+    char path[4096];
+    FILE *f = stderr;
+    if (out) {
+        if (forked)
+            snprintf(path, sizeof path, "%s.%d", out, (int)getpid());
+        else
+            snprintf(path, sizeof path, "%s", out);
+        f = fopen(path, "w");
+    }
     uint64_t total = 0;
     if (!f)
         return;
@@ -165,15 +196,17 @@ static void write_counts(qemu_plugin_id_t id, void *p)
             }
         }
     fprintf(f, "total %llu\n", (unsigned long long)total);
-    if (path)
+    if (out)
         fclose(f);
 }
 
 __attribute__((visibility("default")))
 int qemu_plugin_install(qemu_plugin_id_t id, const void *info, int argc, char **argv)
 {
+    counted_pid = getpid();
     qemu_plugin_register_vcpu_tb_trans_cb(id, on_translate);
     qemu_plugin_register_vcpu_syscall_cb(id, on_syscall);
+    qemu_plugin_register_vcpu_syscall_ret_cb(id, on_syscall_ret);
     qemu_plugin_register_atexit_cb(id, write_counts, NULL);
     return 0;
 }

@@ -37,7 +37,7 @@ STATUS = _object("crawler.Status", "the daemon's state, about once a second", {
     "name": _STR, "source": _STR, "source_detail": _STR, "fps": _NUM, "frames": _INT, "tracks": _INT,
     "tracking": _BOOL, "distance_m": _NUM, "led_level": _NUM, "uptime_s": _NUM, "last_error": _STR_OR_NULL,
     "run_id": _STR_OR_NULL, "observations": _INT, "camera": {"type": "object"},
-    "sim_true_distance_m": _NUM_OR_NULL,
+    "sim_true_distance_m": _NUM_OR_NULL, "dropped_frames": _INT, "drop_rate": _NUM, "workers": {"type": "object"},
 })
 
 OBSERVATION = _object("crawler.Observation", "a coded observation (PACP / EN 13508-2) stamped by the daemon", {
