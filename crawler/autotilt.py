@@ -26,7 +26,7 @@ from .tilt import TiltParams, TiltSearch, TiltTrack
 
 @dataclass(frozen=True)
 class AutoTiltParams:
-    remount_deg: float = 0.3          # the linear corrections hold to here; beyond, the mount moves
+    remount_deg: float = 0.3          # the linear corrections hold to here (or 2 sigma); beyond, the mount moves
     acquire_px: float = 40.0          # a frame shows the tilt once its features moved this far
     found_sigma_deg: float = 1.0      # what the search leaves to the readings
     reading_half_deg: float = 0.5     # a reading's three tilts: the estimate and this either side
@@ -138,7 +138,7 @@ class AutoTilt(FixedTilt):
     def remount(self):
         """Beyond remount_deg, move the mount to the estimate and measure the epoch again there:
         (the new projection or None, metres the distance gains)."""
-        if abs(self.tau) <= math.radians(self.p.remount_deg):
+        if abs(self.tau) <= max(math.radians(self.p.remount_deg), 2 * self.sigma_rad):   # not noise
             return None, 0.0
         m = self.projection.mount
         new = type(self.projection)(replace(m, tilt_rad=m.tilt_rad + self.tau))

@@ -81,8 +81,10 @@ def pose_params(settings: Settings) -> PoseParams | None:
         what = '[mount] tilt_deg = "auto"' if settings.mount.tilt_auto else "[odometry] estimate_pose = true"
         raise BadConfig(f'{what} needs [odometry] method = "cylinder" or "plane": the pixel method has no '
                         "tilt or height to estimate")
-    return PoseParams(auto_tilt=settings.mount.tilt_auto, pitch_sigma_deg=o.pitch_jitter_deg,
-                      bounce_sigma_mm=o.bounce_mm)
+    # with tilt "auto" alone, no pitch or height: read at a tilt not yet found they take up its error
+    on = o.estimate_pose
+    return PoseParams(auto_tilt=settings.mount.tilt_auto, pitch_sigma_deg=o.pitch_jitter_deg if on else 0.0,
+                      bounce_sigma_mm=o.bounce_mm if on else 0.0)
 
 
 def build_odometer(settings: Settings, camera: Camera, default_roi) -> Odometer:

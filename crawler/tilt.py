@@ -23,7 +23,8 @@ class TiltParams:
     step_sigma_deg: float = 5.0        # after a detected step the new tilt is this uncertain
     cusum_slack: float = 1.0           # readings within this many sigmas are noise...
     cusum_limit: float = 12.0          # ...and this much summed excess is a step
-    jump_deg: float = 3.0              # one keyframe's reading this far off is a step at once
+    jump_deg: float = 3.0              # two keyframes' readings in a row this far off, the same way
+    jump_sigmas: float = 4.0           # ...and this many times the readings' scatter: a step at once
     outlier_sigmas: float = 3.0        # a reading this far off feeds the step detector only
     converged_deg: float = 0.1         # the estimate counts as found below this sigma
     memory: float = 0.98               # weight a keyframe's reading keeps per later reading (a creeping mount)
@@ -72,6 +73,7 @@ class TiltTrack:
         self.ref = self.value = value
         self._a = self._b = 0.0               # summed parabola, in (tilt - ref)
         self._scatter = sigma * sigma         # of one keyframe's least about the estimate
+        self._jumped = (0, 0.0)               # the last reading beyond a jump: its side and time
         self._n = 0.0
 
     @property
@@ -84,11 +86,16 @@ class TiltTrack:
         if not (math.isfinite(a) and math.isfinite(slope) and a > 0):
             return None
         raw = at - slope / (2 * a)
-        jump = math.radians(self.p.jump_deg)
+        jump = max(math.radians(self.p.jump_deg), self.p.jump_sigmas * math.sqrt(self._scatter))
         least = float(np.clip(raw, self.value - jump, self.value + jump))
         if self._n >= 3:
-            if abs(raw - self.value) > jump:       # no mount creeps this far in one keyframe: a turn
-                return self.detector.jumped(t_s)
+            side = 0 if abs(raw - self.value) <= jump else (1 if raw > self.value else -1)
+            if side:                               # no mount creeps this far in a keyframe: a turn, if
+                if side == self._jumped[0]:        # the next keyframe says so too (one shake does not)
+                    return self.detector.jumped(self._jumped[1])
+                self._jumped = (side, t_s)
+                return None
+            self._jumped = (0, t_s)
             nu = (least - self.value) / math.sqrt(self._scatter + self.var)
             began = self.detector.update(nu, t_s)
             if began is not None:
