@@ -87,12 +87,16 @@ def test_calibrate_check_passes_the_right_tilt_and_fails_a_wrong_one_with_the_fi
 def test_calibrate_check_fails_a_height_the_curvature_refutes(render_run, capsys):
     from crawler.calibrate import main
 
-    run = render_run("auto24", tilt_deg=24, speed_m_s=0.3, duration_s=3.0, seed=54)
-    true_h = float(read_ground_truth(run["csv"])["camera_height_m"][0])
-    assert main(["check", str(run["h264"]), "--set", "mount.tilt_deg=24", "--set", "mount.height_m=0.20",
-                 "--json"]) == 1
+    run = render_run("height5", tilt_deg=24, speed_m_s=0.3, duration_s=5.0, seed=55)
+    true_h = float(read_ground_truth(run["csv"])["camera_height_m"][0])          # 0.2256 m
+    for configured in (0.20, 0.25):                                              # 26 mm low, 24 mm high
+        assert main(["check", str(run["h264"]), "--set", "mount.tilt_deg=24", "--set",
+                     f"mount.height_m={configured}", "--json"]) == 1
+        h = json.loads(capsys.readouterr().out)["height"]
+        assert h["verdict"] == "FAIL" and abs(h["estimated_m"] - true_h) < 0.008 and h["sigma_m"] < 0.008
+    assert main(["check", str(run["h264"]), "--set", "mount.tilt_deg=24", "--json"]) == 0
     h = json.loads(capsys.readouterr().out)["height"]
-    assert h["verdict"] == "FAIL" and abs(h["estimated_m"] - true_h) < 0.01     # configured: 26 mm off
+    assert h["verdict"] in ("PASS", "UNDETERMINED")          # a 1.5 m drive shows it to about 7 mm
 
 
 @pytest.mark.parametrize("value,ok", [('"auto"', True), ("24", True), ("-80", True), ('"up"', False),
