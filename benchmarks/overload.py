@@ -44,6 +44,7 @@ def replay(run: dict, tilt: float, load: float | None, workers: int):
     from crawler.daemon import Daemon
     from crawler.measurement import build_odometer, recording_camera, thesis_roi
     from crawler.video import VideoReplay
+    from crawler.workers import measuring
     from hw_sim import read_ground_truth
 
     s = settings.load(None, [f"mount.tilt_deg={tilt}"], {})
@@ -52,17 +53,9 @@ def replay(run: dict, tilt: float, load: float | None, workers: int):
     source = VideoReplay(run["h264"], cam, realtime=load is not None, default_roi=thesis_roi(cam.width, cam.height))
     with source:
         odo = build_odometer(s, cam, source.default_roi)
-        pool = None
-        if workers > 1:
-            from crawler.workers import TrackerPool
-
-            pool = TrackerPool(odo, (cam.height, cam.width), workers).__enter__()
-        try:
-            daemon = Daemon(source, odo, name="bench", outputs=[slow], measure=pool.measure if pool else None)
+        with measuring(odo, (cam.height, cam.width), workers) as measure:
+            daemon = Daemon(source, odo, name="bench", outputs=[slow], measure=measure)
             stats = daemon.run()
-        finally:
-            if pool:
-                pool.close()
     true = read_ground_truth(run["csv"])["distance_m"][slow.last]
     return stats.frames, stats.dropped, 100 * (daemon.distance_m - true) / run["truth"]["path_length_m"]
 

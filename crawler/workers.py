@@ -29,6 +29,7 @@ import multiprocessing
 import signal
 import struct
 from collections import deque
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -384,3 +385,14 @@ class WorkersReport(Output):
         status["workers"] = {"processes": p.processes, "depth": p.depth, **p.counts}
 
     summarize = report
+
+
+@contextmanager
+def measuring(odometer, frame_shape, workers: int):
+    """The Daemon's `measure` port for this many processes: None (the odometer measures in this
+    process) for one, else a TrackerPool's, closed on the way out."""
+    if workers <= 1:
+        yield None
+        return
+    with TrackerPool(odometer, frame_shape, workers) as pool:
+        yield pool.measure

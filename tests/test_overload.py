@@ -14,6 +14,7 @@ from crawler.ports import Output
 from crawler.service import Hardware, Mode, RunOptions, Service
 from crawler.sim import SimOptions, make_world
 from crawler.video import Pacer, VideoReplay
+from crawler.workers import measuring
 from hw_sim import read_ground_truth
 
 
@@ -64,18 +65,10 @@ def test_a_replay_at_twice_what_the_loop_can_do_drops_half_and_keeps_the_distanc
     source.pacer = Pacer(clock=lambda: now[0], sleep=sleep)
     with source:
         odo = build_odometer(s, cam, source.default_roi)
-        pool = None
-        if workers > 1:
-            from crawler.workers import TrackerPool
-
-            pool = TrackerPool(odo, (cam.height, cam.width), workers).__enter__()
-        try:
-            daemon = Daemon(source, odo, name="t", outputs=[slow], measure=pool.measure if pool else None)
+        with measuring(odo, (cam.height, cam.width), workers) as measure:
+            daemon = Daemon(source, odo, name="t", outputs=[slow], measure=measure)
             stats = daemon.run()
             status, summary = daemon.status(), daemon.summary()
-        finally:
-            if pool:
-                pool.close()
     seen = [i for _, i, _ in slow.seen]
     gaps = [b - a for a, b in zip(seen[3:], seen[4:])]
     assert set(gaps) <= {2, 3} and gaps.count(2) > 0.9 * len(gaps) and seen[-1] >= 117   # the newest each time
