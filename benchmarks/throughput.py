@@ -63,7 +63,9 @@ def build(window, params, pose: str = "off"):
     cam = Camera.from_fov(960, 720, 37.16, 53.50).window(x, y, w, h, w, h)
     proj = make_projection("cylinder", Mount.from_car(0.30, 0.151, 0.054, 0.0))
     roi = (0, 0, w, h)
-    estimator = None if pose == "off" else PoseEstimator(cam, proj, roi, PoseParams(auto_tilt=pose == "auto"))
+    auto = pose == "auto"             # as crawler/measurement.py builds it: tilt auto alone, no pitch or height
+    estimator = None if pose == "off" else PoseEstimator(cam, proj, roi, PoseParams(
+        auto_tilt=auto, pitch_sigma_deg=0.0 if auto else 0.25, bounce_sigma_mm=0.0 if auto else 1.0))
     return Odometer(cam, proj, roi, params, pose=estimator)
 
 

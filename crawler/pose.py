@@ -24,7 +24,7 @@ docs/odometry.md, "Pose", has the math.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
 
