@@ -138,12 +138,8 @@ class PoseEstimator:
         jk, jc, xy_k = kf.pose[0].take(idx, 0), self.tilt.field.at(xy), kf.pose[1].take(idx, 0)
         moved_px = abs(float(moved[1].mean())) / (self.projection.mount.height_m / self.camera.fy)
         base = self.tilt.update(kf.pose[2], kf.pose[1].take(t_idx, 0), t_xy, moved_px, t_s)
-        H, z = self._model(jk, jc, moved, self.tilt.tau)
-        self._learn_levels(H, z, c.sigma, t_s - kf.t_s)
-        var = self._noise_var(c.sigma)
-        before = self.s[2:].copy()
-        self._update(H.T.dot(H) / var, H.T.dot(z) / var)
-        base += self._refined(self.s[2:] - before)
+        if self._limit.any():                      # pitch or height estimated at all
+            base += self._filter(jk, jc, moved, c.sigma, t_s - kf.t_s)
         step, lat, sens = self._correction(jk, jc, self.tilt.tau)
         if self.tilt.auto:
             self.tilt.record(Hop(t_s, self.projection, xy_k, xy, moved[1].copy(), tuple(self.s),
@@ -175,6 +171,16 @@ class PoseEstimator:
         return self.projection.mount.height_m + float(self.s[HEIGHT])
 
     # -- the filter -------------------------------------------------------------------------------
+
+    def _filter(self, jk, jc, moved, sigma, since_kf) -> float:
+        """This frame's tracks into the pitch and height: the metres the keyframe's better known
+        pose gives the step before it."""
+        H, z = self._model(jk, jc, moved, self.tilt.tau)
+        self._learn_levels(H, z, sigma, since_kf)
+        var = self._noise_var(sigma)
+        before = self.s[2:].copy()
+        self._update(H.T.dot(H) / var, H.T.dot(z) / var)
+        return self._refined(self.s[2:] - before)
 
     def _forget(self):
         """Back to the prior: no pitch or height known."""
