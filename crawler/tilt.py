@@ -118,7 +118,7 @@ class TiltSearch:
     on their step is summed over those frames at every tilt of a coarse grid, then of a fine one
     about the best (one frame's pitch and bounce bias it; over keyframes they average out)."""
 
-    STAGES = ((2.0, 60.0), (0.25, 3.0))     # (grid step, half width) in degrees
+    STAGES = ((3.0, 60.0), (0.5, 4.0))      # (grid step, half width) in degrees
 
     def __init__(self, centre_rad: float, half_rad: float, keyframes: int = 2, limit_deg: float = 75.0):
         self.centre, self.half = centre_rad, half_rad
