@@ -52,14 +52,21 @@ def make_run(out: Path, name: str, window, speed: float, fps: float, frames: int
     return out / f"{name}.h264", json.loads(meta.read_text())
 
 
-def build(window, params):
+def build(window, params, pose: str = "off"):
+    """The odometer on the rendered window; pose "on": crawler/pose.py's pitch and height per frame
+    ([odometry] estimate_pose), "auto": and the tilt ([mount] tilt_deg = "auto")."""
     from crawler.geometry import Camera, Mount, make_projection
     from crawler.odometry import Odometer
+    from crawler.pose import PoseEstimator, PoseParams
 
     x, y, w, h = window
     cam = Camera.from_fov(960, 720, 37.16, 53.50).window(x, y, w, h, w, h)
     proj = make_projection("cylinder", Mount.from_car(0.30, 0.151, 0.054, 0.0))
-    return Odometer(cam, proj, (0, 0, w, h), params)
+    roi = (0, 0, w, h)
+    auto = pose == "auto"             # as crawler/measurement.py builds it: tilt auto alone, no pitch or height
+    estimator = None if pose == "off" else PoseEstimator(cam, proj, roi, PoseParams(
+        auto_tilt=auto, pitch_sigma_deg=0.0 if auto else 0.25, bounce_sigma_mm=0.0 if auto else 1.0))
+    return Odometer(cam, proj, roi, params, pose=estimator)
 
 
 def params_from(args):
@@ -122,7 +129,7 @@ def timing(args, name, window, h264, meta):
     st.wrap(flow, "detect", "keyframe detect")
     st.wrap(flow, "coarse_image", "coarse guess")
     st.wrap(flow, "coarse_shift", "coarse guess")
-    odo = build(window, params_from(args))
+    odo = build(window, params_from(args), args.pose)
     t = time.perf_counter_ns()
     for gray, ts in frames:
         est = odo.update(gray, ts)
@@ -182,7 +189,8 @@ def _count(tmp, n, window, argd):
     cv2.setNumThreads(1)
     frames = np.load(Path(tmp) / "frames.npy")
     times = np.load(Path(tmp) / "times.npy")
-    odo = build(json.loads(window), params_from(argparse.Namespace(**json.loads(argd))))
+    opts = json.loads(argd)
+    odo = build(json.loads(window), params_from(argparse.Namespace(**opts)), opts.get("pose", "off"))
     for i in range(int(n)):
         odo.update(frames[i % len(frames)], float(times[i % len(frames)]))
 
@@ -326,7 +334,8 @@ def _arm(tmp, n, window, argd, marks):
     cv2.setNumThreads(1)
     frames = np.load(Path(tmp) / "frames.npy")
     times = np.load(Path(tmp) / "times.npy")
-    odo = build(json.loads(window), params_from(argparse.Namespace(**json.loads(argd))))
+    opts = json.loads(argd)
+    odo = build(json.loads(window), params_from(argparse.Namespace(**opts)), opts.get("pose", "off"))
     st = _mark_stages() if marks == "1" else None
     if st:
         st.set(10)
@@ -382,6 +391,8 @@ def main(argv=None):
     ap.add_argument("--eps", type=float, help="LK convergence threshold (px)")
     ap.add_argument("--no-fb", action="store_true", help="skip the backward LK check")
     ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--pose", choices=("off", "on", "auto"), default="off",
+                    help='pose estimation: off (the default config), on (estimate_pose), auto (tilt_deg = "auto")')
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

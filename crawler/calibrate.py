@@ -13,8 +13,11 @@ Usage:
                                  [--tolerance PCT] [--json]
       replay a drive between two marks of known distance: the error, PASS/FAIL against +-0.5 %, and
       the camera height or field of view that would make it exact
-  crawlerd calibrate check                (not available yet: the estimated tilt and height against
-                                           the configured ones need the online estimator, issue 14)
+  crawlerd calibrate check VIDEO [--pts FILE | --fps N] | --live SECONDS [--sim [--sim-tilt DEG]]
+                           [--config FILE] [--set SECTION.KEY=VALUE] [--tilt-tolerance DEG]
+                           [--height-tolerance MM] [--json]
+      measure a drive with [mount] tilt_deg = "auto": the tilt (and, where the pipe's curvature shows
+      it, the camera height) the flow shows against the configured, PASS/FAIL and the --set to fix it
 
 A summary goes to stdout (--json: one JSON object), progress to stderr on a terminal.
 Exit status: 0 done (drive: PASS), 1 a FAIL or a calibration that could not be made, 2 bad input.
@@ -88,6 +91,7 @@ _count = _whole(0)
 
 def build_parser() -> argparse.ArgumentParser:
     from .calibrate_board import DEFAULT_BOARD, FORMS
+    from .calibrate_check import add_check_arguments
     from .calibrate_drive import add_drive_arguments
     from .calibrate_intrinsics import MAX_VIEWS, MIN_VIEWS
 
@@ -116,15 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--k3", action="store_true", help="fit the 6th-order radial term too (wide-angle lenses)")
     i.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     add_drive_arguments(sub.add_parser("drive", help="distance error over a drive of known length"))
-    sub.add_parser("check", help="(not available yet) estimated tilt and height against the configured")
+    add_check_arguments(sub.add_parser("check", help="the tilt and height the flow shows against the configured"))
     return p
-
-
-def check_main(args) -> int:
-    """The estimated tilt and height against the configured ones: waits for the online estimator."""
-    raise CrawlerError("crawlerd calibrate check is not available yet: it needs the online tilt and height "
-                       "estimator (issue 14, items 1 and 2); until then measure the tilt with a protractor "
-                       "and check the height with crawlerd calibrate drive (docs/calibration.md)")
 
 
 def main(argv=None) -> int:
@@ -133,6 +130,8 @@ def main(argv=None) -> int:
         if args.what == "intrinsics":
             return intrinsics_main(args)
         if args.what == "check":
+            from .calibrate_check import check_main
+
             return check_main(args)
         if args.what == "board":
             from .calibrate_print import print_main

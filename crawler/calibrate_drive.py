@@ -29,6 +29,7 @@ MAX_REPLAYS = 3             # per correction, after the first replay
 
 def add_drive_arguments(p):
     from .calibrate import _count, _number
+    from .cli import tilt_value
 
     p.add_argument("video", metavar="VIDEO", help="recording of the drive (.h264, .mp4, .mkv)")
     p.add_argument("--length", required=True, type=_number(0.05, 10_000, "a length in metres"), metavar="M",
@@ -49,7 +50,7 @@ def add_drive_arguments(p):
     rep.add_argument("--config", metavar="FILE", help="TOML configuration (default: as crawlerd)")
     rep.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
                      help="override one config key, e.g. --set mount.height_m=0.226 (repeatable)")
-    rep.add_argument("--tilt", type=float, metavar="DEG", help="= --set mount.tilt_deg=DEG")
+    rep.add_argument("--tilt", type=tilt_value, metavar="DEG|auto", help="= --set mount.tilt_deg=DEG")
     rep.add_argument("--method", choices=("pixel", "plane", "cylinder"), help="= --set odometry.method=M")
     p.add_argument("--tolerance", type=_number(0.01, 50, "a percentage"), default=SPEC_PCT, metavar="PCT",
                    help=f"PASS within +-PCT %% of the taped length ({SPEC_PCT:g}, the spec for a cable counter)")
@@ -262,7 +263,7 @@ def drive_text(s: dict) -> str:
     h, f = s["height"], s["fov"]
     lines = [
         f"drive {Path(s['video']).name}: frames {a['frame']}..{b['frame']} ({a['t_s']:.3f} s .. {b['t_s']:.3f} s), "
-        f"method {s['method']}, tilt {s['tilt_deg']:g} deg",
+        f"method {s['method']}, tilt {s['tilt_deg'] if isinstance(s['tilt_deg'], str) else format(s['tilt_deg'], 'g')} deg",
         f"  measured {s['measured_m']:.4f} m, taped {s['known_m']:.4f} m: error {s['error_pct']:+.3f} %   "
         f"{verdict} (limit +-{s['tolerance_pct']:g} %)",
     ]

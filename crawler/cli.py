@@ -37,6 +37,16 @@ FLAG_KEYS = {"method": "odometry.method", "tilt": "mount.tilt_deg", "state_dir":
              "workers": "odometry.workers"}
 
 
+def tilt_value(text: str):
+    """--tilt: degrees, or "auto" (estimated from the flow, docs/calibration.md)."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} must be degrees or auto") from None
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -89,7 +99,8 @@ def build_parser() -> argparse.ArgumentParser:
     cfg.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
                      help="override one config key, e.g. --set mount.tilt_deg=24 (repeatable)")
     cfg.add_argument("--method", choices=("pixel", "plane", "cylinder"), help="= --set odometry.method=M")
-    cfg.add_argument("--tilt", type=float, metavar="DEG", help="= --set mount.tilt_deg=DEG")
+    cfg.add_argument("--tilt", type=tilt_value, metavar="DEG|auto",
+                     help='= --set mount.tilt_deg=DEG; "auto": estimated from the flow')
     cfg.add_argument("--state-dir", metavar="DIR", help="= --set state.directory=DIR (checkpoint)")
     cfg.add_argument("--workers", type=_positive_int, metavar="N",
                      help="= --set odometry.workers=N: processes that track frames (1: this one; 4: a Pi 2's cores)")

@@ -83,6 +83,21 @@ class SpeedFilter:
             self._add(*self._hist.popleft(), -1)
         return self.value()
 
+    def remeasured(self, gain_m: float):
+        """The distance gained gain_m from its steps measured again (a better tilt): the window's
+        samples gain it in proportion to what each had covered, so it is not read as speed."""
+        if not gain_m or len(self._hist) < 2:
+            return
+        d0, span = self._hist[0][1], self._hist[-1][1] - self._hist[0][1]
+        if not span:
+            return
+        hist, t0 = [(t, d + gain_m * (d - d0) / span) for t, d in self._hist], self._t0
+        self.reset()
+        self._t0 = t0
+        for t, d in hist:
+            self._hist.append((t, d))
+            self._add(t, d, 1)
+
     def value(self) -> float | None:
         n = self._n
         den = n * self._stt - self._st * self._st
@@ -102,3 +117,4 @@ class Consensus:
     ratio: float
     pts: np.ndarray
     idx: np.ndarray
+    tracks: tuple = ()    # (indices, ROI positions, displacements, inlier mask) of every track: the pose's

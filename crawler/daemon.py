@@ -117,7 +117,8 @@ class Daemon:
     def describe(self, estimate) -> dict:
         """An estimate as the outputs publish it: with the crawler, the run and the footage counter."""
         return dict(estimate.as_dict(), name=self.name, run_id=self.run_id,
-                    unmeasured_s=round(self._unmeasured(), 3), **self.inspection.fields(estimate.distance_m))
+                    unmeasured_s=round(self._unmeasured(), 3), **self.inspection.fields(estimate.distance_m),
+                    **self.odometer.pose.frame())
 
     def status(self) -> dict:
         win = self._frame_times
@@ -140,7 +141,7 @@ class Daemon:
             "slip": bool(est and est.slip), "slips": self._slips(), "wheel": self.wheel.description,
             "unmeasured_s": round(self._unmeasured(), 3),
             "restart": self.restart.as_dict() if self.restart else None,
-            **self.inspection.fields(self.distance_m),
+            **self.inspection.fields(self.distance_m), **self.odometer.pose.status(),
         }
         info = self.source.info()
         if info:
@@ -305,6 +306,8 @@ class Daemon:
     def summary(self) -> dict:
         """The closing JSON line."""
         out = self.stats.summary(self.distance_m, self.odometer.lateral)
+        if self.odometer.pose.active:
+            out["pose"] = self.odometer.pose.status()
         for output in self.outputs:
             output.summarize(out)
         return out

@@ -105,6 +105,17 @@ class DenseShift:
         return (du * self._scale, dv * self._scale), float(response)
 
 
+def centre_jacobian(wall, roi) -> tuple:
+    """((axial m per row, axial m per column, lateral m per row, lateral m per column), wall metres
+    per image pixel) at the ROI centre: the unit of the odometer's gates, and the Jacobian that
+    turns the global phase-correlation shift into a first guess of the step."""
+    x, y, w, h = roi
+    c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
+    dv = wall(c + [[0, 0.5]]) - wall(c + [[0, -0.5]])
+    du = wall(c + [[0.5, 0]]) - wall(c + [[-0.5, 0]])
+    return (-float(dv[0, 1]), -float(du[0, 1]), float(dv[0, 0]), float(du[0, 0])), abs(float(dv[0, 1]))
+
+
 def window_jacobian(wall, roi) -> tuple:
     """(axial m per row, axial m per column, lateral m per row, lateral m per column) for a global
     shift of the ROI; `wall` maps frame pixels to wall metres (the odometer's projection).

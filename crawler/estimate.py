@@ -23,6 +23,8 @@ class Estimate:
     spread_mm: float | None
     keyframe: bool
     continuous: bool = True           # False: a fresh start, the motion since the last tracked frame unknown
+    remeasured_m: float = 0.0         # of distance_m, metres earlier steps gained when measured again (a
+                                      # better tilt, crawler/autotilt.py): not motion of this frame
     # filled in after the odometer (crawler/distance.py): the published distance's uncertainty and origin
     sigma_m: float | None = None
     bridged: bool = False
@@ -34,6 +36,7 @@ class Estimate:
 
     def as_dict(self) -> dict:
         d = dict(self.__dict__)
+        del d["remeasured_m"]
         for k in ("distance_m", "lateral_m"):
             d[k] = round(d[k], 6)
         for k in ("speed_m_s", "roll_deg", "spread_mm", "sigma_m", "wheel_distance_m", "wheel_scale"):

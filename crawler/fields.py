@@ -64,6 +64,12 @@ def _pins(v) -> str | None:
     return None if all(0 <= p <= 27 for p in v) else "must be BCM GPIO numbers 0..27, e.g. [12, 13]"
 
 
+def _tilt(v) -> str | None:
+    if v == "auto" or not isinstance(v, str) and -80 <= v <= 80:
+        return None
+    return 'must be between -80 and 80 (degrees), or "auto" (estimated from the flow, docs/calibration.md)'
+
+
 def _lgpio_frequency(v) -> str | None:
     # lgpio's software PWM takes 0.1..10000 Hz; beyond that it raises from inside gpiozero
     return None if 0.1 <= v <= 10000 else "must be between 0.1 and 10000 Hz (lgpio's PWM range)"
@@ -71,8 +77,9 @@ def _lgpio_frequency(v) -> str | None:
 
 # -- the one validator ----------------------------------------------------------------------------------
 
-_TYPES = {"int": (int,), "float": (int, float), "bool": (bool,), "str": (str,)}
-_TYPE_NAMES = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string"}
+_TYPES = {"int": (int,), "float": (int, float), "bool": (bool,), "str": (str,), "float | str": (int, float, str)}
+_TYPE_NAMES = {"int": "an integer", "float": "a number", "bool": "true or false", "str": "a string",
+               "float | str": 'a number or "auto"'}
 
 
 def _where(section: str, key: str) -> str:
@@ -90,9 +97,11 @@ def _coerce(section: str, key: str, value, annotation: str):
             raise BadConfig(f"{_where(section, key)} = {value!r} must be a list of "
                             f"{_TYPE_NAMES[item].removeprefix('a ').removeprefix('an ')}s")
         return tuple(_coerce(section, key, v, item) for v in value)
-    ok = isinstance(value, _TYPES[base]) and not (isinstance(value, bool) and base in ("int", "float"))
+    ok = isinstance(value, _TYPES[base]) and not (isinstance(value, bool) and base != "bool")
     if not ok:
         raise BadConfig(f"{_where(section, key)} = {value!r} must be {_TYPE_NAMES[base]}")
+    if base == "float | str":
+        base = "str" if isinstance(value, str) else "float"
     if base == "float":
         if not math.isfinite(value):
             raise BadConfig(f"{_where(section, key)} = {value!r} must be a finite number")

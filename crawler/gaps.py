@@ -178,16 +178,19 @@ class GapBridge:
     # -- measured -------------------------------------------------------------------------------------
 
     def _tracked(self, est) -> Bridged:
-        gap_T = 0.0
+        gap_T, gain = 0.0, getattr(est, "remeasured_m", 0.0)    # (a plain estimate has no re-measure)
         if self._gap is None and not est.continuous and self._hist:
             t0 = self._hist[-1][0]            # a fresh start right after a measured frame: a gap of one
             self._gap = _Gap(t0, self._out_m, *self._motion_before(t0))
         if self._gap is not None and self._settling is None:
             gap_T = self._close_gap(est)
         elif self._settling is not None:
+            _remeasured(self._settling[1], gain)
             self._settling[1].append((est.t_s, est.distance_m))
             if est.t_s - self._settling[0] >= self.p.settle_s:
                 self._settle_or_reopen()
+        if gain:                              # the motion model reads its speeds from the history
+            self._hist = deque(_remeasured(list(self._hist), gain))
         if self._kf_vision is None:
             self._kf_vision = est.distance_m
         self._track_jitter(est)
@@ -297,6 +300,16 @@ class GapBridge:
         if stop is not None:
             return self._travel(g, T), 0.0    # stopped, and still stopped
         return 0.5 * (g.v0 + v1) * T, 0.0     # a constant acceleration over the gap
+
+
+def _remeasured(samples: list, gain_m: float):
+    """The odometer measured its steps since the fresh start again (a better tilt): the samples the
+    speed after the gap is taken from gain it too, in proportion to the distance each had covered
+    (a scale error), so that the correction is not read as speed."""
+    if gain_m and len(samples) > 1 and samples[-1][1] != samples[0][1]:
+        d0, span = samples[0][1], samples[-1][1] - samples[0][1]
+        samples[:] = [(t, d + gain_m * (d - d0) / span) for t, d in samples]
+    return samples
 
 
 def _slope(ts, ds) -> float | None:

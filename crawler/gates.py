@@ -20,6 +20,13 @@ import cv2
 from .consensus import median
 
 
+def reacquired(c, n_visible: int, p, m_per_px: float) -> bool:
+    """After a restart the wide search against the saved frame can lock onto a chance match on
+    other wall: the first measurement must be a clear one (most visible features, tight).
+    (Between frames of one run the motion gates already refuse such a match.)"""
+    return c.n_in >= p.reacquire_share * n_visible and c.sigma <= p.reacquire_spread_px * m_per_px
+
+
 class FrameGates:
     def __init__(self, params):
         self.p = params               # OdometryParams (and its DenseParams)

@@ -31,6 +31,7 @@ class Keyframe:
         self.distance = distance
         self.lateral = lateral
         self.n0 = len(pts)
+        self.pose = None          # crawler/pose.py's terms for these features
 
     @property
     def rows_per_m(self) -> float:

@@ -16,6 +16,7 @@ from .flow import FlowParams
 from .gaps import BridgeParams
 from .geometry import Camera, check_distortion, check_view, make_projection
 from .odometry import Odometer, OdometryParams
+from .pose import NullPose, PoseEstimator, PoseParams
 from .settings import CameraSettings, OdometrySettings, Settings
 
 
@@ -71,12 +72,29 @@ def check_geometry(settings: Settings, camera: Camera, roi) -> float:
     return worst
 
 
+def pose_params(settings: Settings) -> PoseParams | None:
+    """What the pose estimator assumes of the car, or None when nothing is estimated."""
+    o = settings.odometry
+    if not (settings.mount.tilt_auto or o.estimate_pose):
+        return None
+    if o.method == "pixel":
+        what = '[mount] tilt_deg = "auto"' if settings.mount.tilt_auto else "[odometry] estimate_pose = true"
+        raise BadConfig(f'{what} needs [odometry] method = "cylinder" or "plane": the pixel method has no '
+                        "tilt or height to estimate")
+    # with tilt "auto" alone, no pitch or height: read at a tilt not yet found they take up its error
+    on = o.estimate_pose
+    return PoseParams(auto_tilt=settings.mount.tilt_auto, pitch_sigma_deg=o.pitch_jitter_deg if on else 0.0,
+                      bounce_sigma_mm=o.bounce_mm if on else 0.0)
+
+
 def build_odometer(settings: Settings, camera: Camera, default_roi) -> Odometer:
     """The only place outside the tests that makes an Odometer."""
     roi = resolve_roi(settings.odometry, camera, default_roi)
     check_geometry(settings, camera, roi)
     projection = make_projection(settings.odometry.method, settings.mount.mount())
-    return Odometer(camera, projection, roi, odometry_params(settings.odometry))
+    params = pose_params(settings)
+    pose = NullPose(settings.mount.tilt_deg) if params is None else PoseEstimator(camera, projection, roi, params)
+    return Odometer(camera, projection, roi, odometry_params(settings.odometry), pose=pose)
 
 
 def bridge_params(settings: Settings, odometer: Odometer) -> BridgeParams:
@@ -99,7 +117,7 @@ def describe(settings: Settings, camera: Camera, default_roi) -> dict:
     return {
         "method": settings.odometry.method,
         "camera_height_m": round(mount.height_m, 6),
-        "tilt_deg": mount.tilt_deg,
+        "tilt_deg": settings.mount.tilt_deg if settings.mount.tilt_auto else mount.tilt_deg,   # "auto": from 0
         "frame": [camera.width, camera.height],
         "intrinsics": {k: round(getattr(camera, k), 3) for k in ("fx", "fy", "cx", "cy")},
         # thesis Eq. 3.1 at the crown, tilt ignored

@@ -21,21 +21,22 @@ import numpy as np
 
 from . import flow
 from .consensus import LATERAL_AXIAL, Consensus, SpeedFilter, robust_step, rolling_shutter
-from .dense import DenseShift, window_jacobian
+from .dense import DenseShift, centre_jacobian, window_jacobian
 from .estimate import Estimate
-from .gates import FrameGates, SpreadGate
+from .gates import FrameGates, SpreadGate, reacquired
 from .geometry import Camera, Projection
 from .keyframe import Keyframe, find_features, motion_model, track_visible
 from .odometry_params import OdometryParams
+from .pose import NullPose
 
 
 class Odometer:
     """Turns a stream of grey frames into distance, speed, lateral motion and a quality figure."""
 
     def __init__(self, camera: Camera, projection: Projection, roi, params: OdometryParams | None = None,
-                 tracker=track_visible):
+                 tracker=track_visible, pose=None):
         self.camera = camera
-        self.projection = projection
+        self.pose = pose or NullPose()     # crawler/pose.py: the camera's tilt, pitch and height
         self.roi = tuple(int(v) for v in roi)
         self.params = params or OdometryParams()
         x, y, w, h = self.roi
@@ -45,14 +46,7 @@ class Odometer:
         # where a guess must fall for the feature to be tracked, as a box's centre and half-size
         mid = np.float32([(w - 1) / 2.0, (h - 1) / 2.0])
         self.view, self._views = (mid, mid - b), {}    # ...and tiled for n points (cheaper numpy)
-        # wall metres per image pixel at the ROI centre: the unit of the gates, and the Jacobian that
-        # turns the global phase-correlation shift into a first guess of the step
-        c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
-        dv = self._wall(c + [[0, 0.5]]) - self._wall(c + [[0, -0.5]])
-        du = self._wall(c + [[0.5, 0]]) - self._wall(c + [[-0.5, 0]])
-        self._jac = (-float(dv[0, 1]), -float(du[0, 1]), float(dv[0, 0]), float(du[0, 0]))
-        self._dense_jac = window_jacobian(self._wall, self.roi)
-        self.m_per_px = abs(float(dv[0, 1]))
+        self.remount(projection)
         lvl = self.params.flow.coarse_level
         self._coarse_scale = float(2 ** lvl)
         small = (math.ceil(h / 2 ** lvl), math.ceil(w / 2 ** lvl))
@@ -162,6 +156,12 @@ class Odometer:
 
     # -- internals ----------------------------------------------------------------------------------
 
+    def remount(self, projection: Projection):
+        """Measure with this projection (a new tilt): the gates' unit and the shift's Jacobians."""
+        self.projection = projection
+        self._jac, self.m_per_px = centre_jacobian(self._wall, self.roi)
+        self._dense_jac = window_jacobian(self._wall, self.roi)
+
     def _wall(self, px: np.ndarray) -> np.ndarray:
         return self.projection.to_wall(self.camera.normalise(px))
 
@@ -183,6 +183,7 @@ class Odometer:
         predict = motion_model(px, wall, self._pixels, self.m_per_px)
         self._kf = Keyframe(img, pts, wall, self.camera.row_time(px[:, 1]), t_s, self.distance,
                             self.lateral, predict)
+        self.pose.keyframe(self._kf, px, t_s)
         self._prev_pts = self._kf.pts
         self._prev_origin = (self._kf, slice(None))
         self._jv = self._kf.rows_per_m
@@ -264,19 +265,10 @@ class Odometer:
             return None
         (lat, step), both, (_, sigma) = robust_step(moved, p.inlier_floor_px * self.m_per_px, p.mad_k)
         c = Consensus(float(step), float(lat), int(np.count_nonzero(both)), float(sigma), 0.0,
-                      pts1.compress(both, 0), idx.compress(both))
+                      pts1.compress(both, 0), idx.compress(both), (idx, pts1, moved, both))
         c.ratio = c.sigma / (abs(c.step) + self.m_per_px)
         enough = c.n_in >= p.min_tracks and c.n_in >= p.min_inlier_share * n_tracked
         return c if enough and self._spread.calm(c.step, c.sigma, c.ratio) else None
-
-    def _reacquired(self, c: Consensus, n_visible: int) -> bool:
-        """After a restart the wide search against the saved frame can lock onto a chance match on
-        other wall: the first measurement must be a clear one (most visible features, tight).
-        (Between frames of one run the motion gates already refuse such a match.)"""
-        p = self.params
-        if not self._resumed:
-            return True
-        return c.n_in >= p.reacquire_share * n_visible and c.sigma <= p.reacquire_spread_px * self.m_per_px
 
     def _plausible(self, c: Consensus, t_s: float) -> bool:
         """The speed of this frame since the last good one (a fresh keyframe counts as one) against
@@ -288,7 +280,8 @@ class Odometer:
         idx, pts1, n_visible = self._track_guessed(img, t_s)
         n_tracked = len(idx)
         c = self._consensus(idx, pts1, t_s) if n_tracked >= self.params.min_tracks else None
-        if c is not None and not (self._plausible(c, t_s) and self._reacquired(c, n_visible)):
+        clear = c is not None and (not self._resumed or reacquired(c, n_visible, self.params, self.m_per_px))
+        if c is not None and not (self._plausible(c, t_s) and clear):
             c = None
         if c is None:
             if rescue and self._good_roi is not None and self._kf.t_s < self._last_good_t:
@@ -303,6 +296,8 @@ class Odometer:
 
     def _accept(self, img, t_s, c: Consensus, n_tracked: int) -> Estimate:
         p, kf = self.params, self._kf
+        fix = self.pose.measure(kf, c, t_s)        # corrects c and kf.distance for the pose (crawler/pose.py)
+        self._speed.remeasured(fix.base_m)
         dt_prev = t_s - self._last_good_t
         delta = c.step - self._last_step
         if dt_prev > 0:
@@ -326,9 +321,12 @@ class Odometer:
         renew = (stay < max(p.min_tracks * p.renew_floor, p.renew_share * kf.n0)
                  or abs(c.step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, c.n_in, c.sigma, keyframe=False)
-        est.continuous = not self._blind_restart
+        est.continuous, est.remeasured_m = not self._blind_restart, fix.base_m
         self._blind_restart, self._unmeasured_since, self._after_dense, self._resumed = False, None, False, False
-        if renew:
+        if fix.remount is not None:           # the pose estimate moved the tilt: a keyframe at the new one;
+            self.remount(fix.remount)         # the speed the gates hold was measured at the old one
+            self._gates.v_ref = None
+        if renew or fix.remount is not None:
             est.keyframe = self._new_keyframe(self._good_roi, t_s, owned=True)
         return est
 

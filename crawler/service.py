@@ -333,7 +333,7 @@ def sim_wheel(settings: Settings, options: RunOptions) -> Settings:
 
 def sim_settings(settings: Settings, options: RunOptions, state_dir_given: bool) -> Settings:
     """--sim: the simulated car's tilt is the mount's, and its checkpoint never the real run's."""
-    if options.sim.tilt_deg is not None:
+    if options.sim.tilt_deg is not None and not settings.mount.tilt_auto:
         settings = replace(settings, mount=replace(settings.mount, tilt_deg=options.sim.tilt_deg))
     if not state_dir_given:
         settings = replace(settings, state=replace(settings.state, directory=str(SIM_STATE_DIR)))

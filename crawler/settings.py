@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 from .errors import BadConfig
 from .fields import (_check_field, _check_fields, _coerce, _distortion, _f, _lgpio_frequency, _name,
-                     _odd_window, _output_size, _pins, _roi, _window, between, one_of, positive)
+                     _odd_window, _output_size, _pins, _roi, _tilt, _window, between, one_of, positive)
 from .geometry import METHODS, Mount
 
 if TYPE_CHECKING:
@@ -79,16 +79,22 @@ class MountSettings:
     car_width_m: float = _f(0.151)
     camera_offset_m: float = _f(0.054)
     height_m: float | None = _f(None)
-    tilt_deg: float = _f(0.0, between(-80, 80))
+    tilt_deg: float | str = _f(0.0, _tilt)    # "auto": estimated online (crawler/autotilt.py), from 0
 
     def __post_init__(self):
         _check_fields(self, "mount")
         self.mount()   # impossible geometry (car wider than the pipe, camera outside it) is refused here
 
+    @property
+    def tilt_auto(self) -> bool:
+        return self.tilt_deg == "auto"
+
     def mount(self) -> Mount:
+        """The mount to measure with; with tilt "auto", the start of the estimate (0 degrees)."""
+        tilt = 0.0 if self.tilt_auto else self.tilt_deg
         if self.height_m is not None:
-            return Mount.from_height(self.pipe_diameter_m, self.height_m, self.tilt_deg)
-        return Mount.from_car(self.pipe_diameter_m, self.car_width_m, self.camera_offset_m, self.tilt_deg)
+            return Mount.from_height(self.pipe_diameter_m, self.height_m, tilt)
+        return Mount.from_car(self.pipe_diameter_m, self.car_width_m, self.camera_offset_m, tilt)
 
 
 @dataclass(frozen=True)
@@ -103,7 +109,9 @@ class OdometrySettings:
     max_baseline_px: float = _f(120.0, positive)
     speed_window_s: float = _f(0.25, positive)
     max_incidence_deg: float = _f(70.0, between(0, 90, lo_open=True, hi_open=True))
-    pitch_jitter_deg: float = _f(0.25, between(0, 10))    # the car's unmeasured pitching: part of sigma_m
+    pitch_jitter_deg: float = _f(0.25, between(0, 10))    # the car's pitching: part of sigma_m; the pose prior
+    bounce_mm: float = _f(1.0, between(0, 50))            # the suspension's bounce: the pose prior
+    estimate_pose: bool = _f(False)   # per-frame pitch and height from the tracks (crawler/pose.py)
     workers: int = _f(1, between(1, 16))    # processes that share a frame's work (crawler/workers.py)
 
     def __post_init__(self):

@@ -56,8 +56,9 @@ def make_world(settings: Settings, options: SimOptions, **kw):
     from hw_sim.picamera2_fake import SimWorld
 
     m = settings.mount
+    tilt = options.tilt_deg if options.tilt_deg is not None else 0.0 if m.tilt_auto else m.tilt_deg
     try:
-        return SimWorld(sensor=options.sensor, tilt_deg=m.tilt_deg, speed_m_s=options.speed_m_s,
+        return SimWorld(sensor=options.sensor, tilt_deg=tilt, speed_m_s=options.speed_m_s,
                         profile=options.profile, seed=options.seed, featureless=options.featureless,
                         pipe_diameter_m=m.pipe_diameter_m, car_width_m=m.car_width_m,
                         offset_m=m.camera_offset_m, camera_height_m=m.height_m, **kw)

@@ -276,9 +276,9 @@ def test_the_printed_page_holds_the_board_at_its_true_size(crawlerd, tmp_path, s
     assert rc == 2 and "more than fits on A4" in err and "--paper" in err and err.count("\n") == 1
 
 
-def test_check_says_it_is_not_available_yet(crawlerd):
+def test_check_without_a_drive_says_what_it_needs(crawlerd):
     rc, _, err = crawlerd("calibrate", "check")
-    assert rc == 2 and "not available yet" in err and err.count("\n") == 1
+    assert rc == 2 and "VIDEO --live is required" in err and err.count("\n") == 1
 
 
 def test_the_drive_calibrates_the_camera_alone(drive_run, crawlerd, tmp_path):

@@ -1,0 +1,233 @@
+"""`[mount] tilt_deg = "auto"`: find the camera's tilt from the flow, follow it, and keep the
+distance measured meanwhile right. Pure: no I/O.
+
+The tilt shows in how far and near features disagree on one step (for a cylinder, the wall metres
+each row sees depend on the tilt). From a cold start, or after a step (the operator turned the
+camera), the tilt is searched for with the exact projection over a grid (crawler/tilt.py's
+TiltSearch); once found, each keyframe gives a reading (a parabola through the disagreement at
+three tilts about the estimate, on the frame where its features moved farthest), fused by
+TiltTrack, whose step detector opens the search again. The odometer measures with one mount (the
+nominal tilt); the estimate's offset from it is corrected linearly in every step, and when it grows
+beyond `remount_deg` the mount moves: the odometer takes a new keyframe there, and every step of the
+epoch (since the start, or since the step began) is measured again at the new tilt, exactly.
+docs/odometry.md, "Pose", has the math.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from .posefield import JacobianField
+from .tilt import TiltParams, TiltSearch, TiltTrack
+
+
+@dataclass(frozen=True)
+class AutoTiltParams:
+    remount_deg: float = 0.3          # the linear corrections hold to here (or 2 sigma); beyond, the mount moves
+    acquire_px: float = 40.0          # a frame shows the tilt once its features moved this far
+    found_sigma_deg: float = 1.0      # what the search leaves to the readings
+    reading_half_deg: float = 0.5     # a reading's three tilts: the estimate and this either side
+    read_every: int = 3               # a reading on every this many frames that show the tilt
+    max_hops: int = 400               # steps of an epoch kept to be measured again
+    tilt: TiltParams = TiltParams()
+
+
+@dataclass
+class Hop:
+    """A closed keyframe step of the epoch, kept to be measured again at a better tilt."""
+
+    t_s: float
+    projection: object
+    xy_k: np.ndarray
+    xy_c: np.ndarray
+    dy: np.ndarray           # per-feature axial displacement the odometer measured
+    pose: tuple              # (pitch, height, keyframe pitch, keyframe height) used
+    d: float                 # the step as it stands in the distance now
+    g: float                 # d step / d tilt
+
+
+class FixedTilt:
+    """The configured tilt: the mount never moves."""
+
+    auto = False
+    tau = 0.0
+    sigma_rad = 0.0
+    steps = 0
+
+    def __init__(self, camera, projection, roi):
+        self.projection = projection
+        self.field = JacobianField(camera, projection, roi)
+
+    def update(self, serial, xy_k, xy_c, moved_px, t_s) -> float:
+        return 0.0
+
+    def record(self, hop: Hop):
+        pass
+
+    def closed(self, continuous: bool, t_s: float):
+        pass
+
+    def remount(self):
+        return None, 0.0
+
+
+class AutoTilt(FixedTilt):
+    """The tilt estimate, as an offset `tau` (radians) from the mount the odometer measures with."""
+
+    auto = True
+
+    def __init__(self, camera, projection, roi, params: AutoTiltParams | None = None):
+        super().__init__(camera, projection, roi)
+        self.p = params or AutoTiltParams()
+        self.camera, self.roi = camera, roi
+        self.tau = 0.0
+        self.track: TiltTrack | None = None
+        self.search = TiltSearch(projection.mount.tilt_rad, 3 * math.radians(self.p.tilt.start_sigma_deg))
+        self.hops: list[Hop] = []
+        self._last: Hop | None = None
+        self._serial = None
+        self._readings: list = []     # the current keyframe's parabolas (curvature, slope, at)
+        self._frames = 0
+        self._break_t = -math.inf     # the first measured frame after lost frames
+        self._after_break = False
+        self.steps = 0
+
+    @property
+    def sigma_rad(self) -> float:
+        if self.track is None:
+            return math.radians(self.p.tilt.start_sigma_deg if not self.steps else self.p.tilt.step_sigma_deg)
+        return math.sqrt(max(self.track.var, 1e-12))
+
+    def update(self, serial, xy_k, xy_c, moved_px, t_s) -> float:
+        """One measured frame of keyframe `serial`: search, or read the last keyframe's tilt. The
+        metres the epoch's closed steps gain from a changed estimate."""
+        before = self.tau
+        if serial != self._serial:
+            self._read(t_s)
+            self._serial = serial
+        if moved_px >= self.p.acquire_px:
+            self._frames += 1
+            if self.track is None:
+                self._search_step(serial, moved_px, xy_k, xy_c)
+            elif self._frames % self.p.read_every == 0:
+                self._readings.append(self._reading(xy_k, xy_c))
+        change = self.tau - before
+        for hop in self.hops:
+            hop.d += hop.g * change
+        return sum(h.g for h in self.hops) * change
+
+    def record(self, hop: Hop):
+        self._last = hop
+        if self._after_break:
+            self._break_t, self._after_break = hop.t_s, False
+
+    def closed(self, continuous: bool, t_s: float):
+        """A new keyframe: the last measured step is closed, part of the epoch. One after lost
+        frames (a turn of the camera loses every track) starts what a step found later may span:
+        the steps before it were measured at the tilt before the turn, and its first step is the
+        gap's, which crawler/gaps.py bridges with the motion model."""
+        self._after_break = self._after_break or not continuous
+        if self._last is not None:
+            self.hops.append(self._last)
+            del self.hops[:-self.p.max_hops]
+        self._last = None
+
+    def remount(self):
+        """Beyond remount_deg, move the mount to the estimate and measure the epoch again there:
+        (the new projection or None, metres the distance gains)."""
+        if abs(self.tau) <= max(math.radians(self.p.remount_deg), 2 * self.sigma_rad):   # not noise
+            return None, 0.0
+        m = self.projection.mount
+        new = type(self.projection)(replace(m, tilt_rad=m.tilt_rad + self.tau))
+        self.projection, self.field = new, JacobianField(self.camera, new, self.roi)
+        self.tau = 0.0
+        hops = [h for h in self.hops + [self._last] if h is not None and h.t_s != self._break_t]
+        extra = sum(self._measure_again(h, new) for h in hops)
+        return new, extra
+
+    # -- internals ----------------------------------------------------------------------------------
+
+    def _search_step(self, serial, moved_px, xy_k, xy_c):
+        if not self.search.offer(serial, moved_px, (xy_k, xy_c)):
+            return
+        m, kind = self.projection.mount, type(self.projection)
+        found = self.search.solve(lambda t, s: disagreement(kind(replace(m, tilt_rad=t)), *s, robust=True))
+        self.track = TiltTrack(found, self.p.tilt, math.radians(self.p.found_sigma_deg))
+        self.tau = found - m.tilt_rad
+
+    def _read(self, t_s):
+        """The finished keyframe's readings, averaged (its frames saw the car pitch and bounce in
+        different phases; their errors in the features are the same, so the variance is the
+        readings' mean, not less), fused; a step opens the search again."""
+        r = np.array([x for x in self._readings if np.all(np.isfinite(x))]).reshape(-1, 3)
+        self._readings = []
+        if self.track is None or not len(r):
+            return
+        a, slope, at = r.mean(axis=0)
+        began = self.track.add(float(a), float(slope), float(at), t_s)
+        if began is None:
+            self.tau = self.track.value - self.projection.mount.tilt_rad
+            return
+        self.steps += 1
+        self.hops = [h for h in self.hops if h.t_s >= began and h.t_s > self._break_t]   # the tilt was right
+        centre = self.projection.mount.tilt_rad + self.tau
+        self.search = TiltSearch(centre, 3 * math.radians(self.p.tilt.start_sigma_deg))   # a turn: anywhere
+        self.track = None
+
+    def _reading(self, xy_k, xy_c):
+        """The parabola through the disagreement at the estimate and either side of it: (curvature,
+        slope at the estimate, the estimate)."""
+        m, kind = self.projection.mount, type(self.projection)
+        t0, h = m.tilt_rad + self.tau, math.radians(self.p.reading_half_deg)
+        keep = _not_stray(kind(replace(m, tilt_rad=t0)), xy_k, xy_c)
+        xy_k, xy_c = xy_k[keep], xy_c[keep]
+        c_lo, c0, c_hi = (disagreement(kind(replace(m, tilt_rad=t0 + d)), xy_k, xy_c) for d in (-h, 0.0, h))
+        return (c_lo + c_hi - 2 * c0) / (2 * h * h), (c_hi - c_lo) / (2 * h), t0
+
+    def _measure_again(self, hop: Hop, new) -> float:
+        """The hop's step at the new mount: the change in metres. Its pitch and height are kept when
+        the tilt moved little; read at a tilt far off, they were the tilt's error, and are dropped."""
+        old = hop.projection
+        if far_apart(old, new, self.p.found_sigma_deg):
+            hop.pose = (0.0, 0.0, 0.0, 0.0)
+        wk0, wk1 = old.to_wall(hop.xy_k), new.to_wall(hop.xy_k)
+        wc0, wc1 = old.to_wall(hop.xy_c), new.to_wall(hop.xy_c)
+        dy = hop.dy + (wk1[:, 1] - wk0[:, 1]) - (wc1[:, 1] - wc0[:, 1])
+        jk, jc = self.field.at(hop.xy_k).mean(axis=0), self.field.at(hop.xy_c).mean(axis=0)
+        pc, hc, pk, hk = hop.pose
+        d = float(np.mean(dy)) + jk[1] * pk - jc[1] * pc - jc[3] * (hc - hk)
+        if not math.isfinite(d):
+            return 0.0
+        change, hop.d, hop.g, hop.projection, hop.dy = d - hop.d, d, float(jk[1] - jc[1]), new, dy
+        return change
+
+
+def far_apart(a, b, deg: float) -> bool:
+    """Two projections' tilts more than deg apart."""
+    return abs(a.mount.tilt_rad - b.mount.tilt_rad) > math.radians(deg)
+
+
+def _not_stray(projection, xy_k, xy_c, k: float = 6.0) -> np.ndarray:
+    """Tracks that are not strays: within k robust sigmas of the median step (a wrong tilt only
+    spreads the steps over the rows; a track that found the wrong texture lands anywhere)."""
+    d = projection.to_wall(xy_k) - projection.to_wall(xy_c)
+    dev = np.abs(d - np.median(d, axis=0))
+    mad = np.median(dev, axis=0) * 1.4826 + 1e-9
+    return np.all(dev <= k * mad, axis=1)
+
+
+def disagreement(projection, xy_k, xy_c, robust: bool = False) -> float:
+    """How much the features disagree on one step at this projection, per square metre of step.
+    Robust (for the search, whose tracks were chosen at a tilt maybe far off): the log of the
+    median spread, so that a frame that agrees sharply somewhere outweighs one with a stray track."""
+    d = projection.to_wall(xy_k) - projection.to_wall(xy_c)
+    if not robust:
+        scale = float(np.mean(d[:, 1])) ** 2
+        return float(np.var(d[:, 1]) + np.var(d[:, 0])) / scale if scale > 0 else math.inf
+    dev = np.abs(d - np.median(d, axis=0))
+    spread = float(np.sum(np.median(dev, axis=0) ** 2))
+    scale = float(np.median(d[:, 1])) ** 2
+    return math.log(spread / scale + 1e-12) if scale > 0 and math.isfinite(spread) else math.inf

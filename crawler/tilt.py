@@ -1,0 +1,155 @@
+"""How the tilt estimate moves: a mount that creeps, and an operator who turns the camera. Pure.
+
+crawler/pose.py keeps the tilt in its Kalman state (a random walk: tape and clamps creep). A turn of
+the camera is a step, which a random walk slow enough to average the noise would take seconds to
+follow. So every frame's own tilt reading (the tilt that would make its far and near features agree,
+with nothing but this frame) is compared with the estimate, and a two-sided CUSUM of the normalised
+differences finds a step within a few frames of motion. It also says when the step began (the last
+time the sums stood at zero), so the distance measured since then can be measured again at the new
+tilt (docs/odometry.md, "Pose").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TiltParams:
+    start_sigma_deg: float = 20.0      # "auto" from a cold start: anything from looking up to far ahead
+    step_sigma_deg: float = 5.0        # after a detected step the new tilt is this uncertain
+    cusum_slack: float = 1.0           # readings within this many sigmas are noise...
+    cusum_limit: float = 12.0          # ...and this much summed excess is a step
+    jump_deg: float = 3.0              # two keyframes' readings in a row this far off, the same way
+    jump_sigmas: float = 4.0           # ...and this many times the readings' scatter: a step at once
+    outlier_sigmas: float = 3.0        # a reading this far off feeds the step detector only
+    converged_deg: float = 0.1         # the estimate counts as found below this sigma
+    memory: float = 0.98               # weight a keyframe's reading keeps per later reading (a creeping mount)
+
+
+class StepDetector:
+    """Two-sided CUSUM of normalised tilt innovations."""
+
+    def __init__(self, params: TiltParams | None = None):
+        self.p = params or TiltParams()
+        self.steps = 0
+        self.reset()
+
+    def reset(self):
+        self._up = self._down = 0.0
+        self._quiet_since = None        # when the sums last stood at zero: a step began after it
+
+    def update(self, nu: float, t_s: float) -> float | None:
+        """One normalised innovation at t_s; a step returns the time it began."""
+        k = self.p.cusum_slack
+        self._up = max(0.0, self._up + nu - k)
+        self._down = max(0.0, self._down - nu - k)
+        if (self._up == 0.0 and self._down == 0.0) or self._quiet_since is None:
+            self._quiet_since = t_s
+        if max(self._up, self._down) <= self.p.cusum_limit:
+            return None
+        return self.jumped(t_s)
+
+    def jumped(self, t_s: float) -> float:
+        """A step: when it began (the last time the sums stood at zero, or now)."""
+        began = t_s if self._quiet_since is None else self._quiet_since
+        self.steps += 1
+        self.reset()
+        return began
+
+
+class TiltTrack:
+    """The tilt once found. Each keyframe gives the parabola of its features' disagreement about the
+    estimate; the parabolas are summed, forgetting slowly (a mount that creeps), and the sum's
+    least is the tilt: a keyframe counts by how sharply it shows the tilt. Each keyframe's own
+    least, against the estimate, feeds the step detector and the estimate's scatter."""
+
+    def __init__(self, value: float, params: TiltParams | None = None, sigma: float = 0.0):
+        self.p = params or TiltParams()
+        self.detector = StepDetector(self.p)
+        self.ref = self.value = value
+        self._a = self._b = 0.0               # summed parabola, in (tilt - ref)
+        self._scatter = sigma * sigma         # of one keyframe's least about the estimate
+        self._jumped = (0, 0.0)               # the last reading beyond a jump: its side and time
+        self._n = 0.0
+
+    @property
+    def var(self) -> float:
+        return self._scatter / max(self._n, 1.0)
+
+    def add(self, a: float, slope: float, at: float, t_s: float) -> float | None:
+        """A keyframe's parabola: curvature a (per rad^2) and slope at tilt `at`; a step returns
+        when it began."""
+        if not (math.isfinite(a) and math.isfinite(slope) and a > 0):
+            return None
+        raw = at - slope / (2 * a)
+        jump = max(math.radians(self.p.jump_deg), self.p.jump_sigmas * math.sqrt(self._scatter))
+        least = float(np.clip(raw, self.value - jump, self.value + jump))
+        if self._n >= 3:
+            side = 0 if abs(raw - self.value) <= jump else (1 if raw > self.value else -1)
+            if side:                               # no mount creeps this far in a keyframe: a turn, if
+                if side == self._jumped[0]:        # the next keyframe says so too (one shake does not)
+                    return self.detector.jumped(self._jumped[1])
+                self._jumped = (side, t_s)
+                return None
+            self._jumped = (0, t_s)
+            nu = (least - self.value) / math.sqrt(self._scatter + self.var)
+            began = self.detector.update(nu, t_s)
+            if began is not None:
+                return began
+            if abs(nu) > self.p.outlier_sigmas:    # a step in the making is not averaged in
+                return None
+        keep = self.p.memory
+        u = at - self.ref
+        self._a = keep * self._a + a
+        self._b = keep * self._b + slope - 2 * a * u
+        self._n = keep * self._n + 1.0
+        self._scatter += ((least - self.value) ** 2 - self._scatter) / min(self._n + 1.0, 1.0 / (1.0 - keep))
+        self.value = self.ref - self._b / (2 * self._a)
+        return None
+
+
+class TiltSearch:
+    """Where the tilt is when nothing is known yet (a cold start, a step). Each keyframe offers the
+    frame on which its features moved farthest; once `keyframes` have, the features' disagreement
+    on their step is summed over those frames at every tilt of a coarse grid, then of a fine one
+    about the best (one frame's pitch and bounce bias it; over keyframes they average out)."""
+
+    STAGES = ((3.0, 60.0), (0.5, 4.0))      # (grid step, half width) in degrees
+
+    def __init__(self, centre_rad: float, half_rad: float, keyframes: int = 2, limit_deg: float = 75.0):
+        self.centre, self.half = centre_rad, half_rad
+        self.keyframes, self.limit = keyframes, math.radians(limit_deg)
+        self.samples: dict = {}          # keyframe -> (moved px, sample)
+
+    def offer(self, key, moved_px: float, sample) -> bool:
+        """A frame of keyframe `key` whose features moved moved_px; True once enough keyframes have."""
+        if key not in self.samples or moved_px > self.samples[key][0]:
+            self.samples[key] = (moved_px, sample)
+        return len(self.samples) > self.keyframes     # the current keyframe's may still grow
+
+    def solve(self, disagreement) -> float:
+        """The tilt (radians) where disagreement(tilt, sample) summed over the samples is least."""
+        samples = [s for _, s in self.samples.values()]
+        centre, half = self.centre, min(self.half, math.radians(self.STAGES[0][1]))
+        for step_deg, half_deg in self.STAGES:
+            step = math.radians(step_deg)
+            n = max(2, int(math.ceil(half / step)))
+            grid = centre + step * np.arange(-n, n + 1)
+            grid = grid[np.abs(grid) <= self.limit]
+            cost = np.array([sum(disagreement(float(t), s) for s in samples) for t in grid])
+            centre = _parabola_min(grid, np.nan_to_num(cost, nan=np.inf))
+            half = math.radians(half_deg)
+        return centre
+
+
+def _parabola_min(grid: np.ndarray, cost: np.ndarray) -> float:
+    """The grid's minimum, refined by a parabola through it and its neighbours."""
+    i = int(np.clip(np.argmin(cost), 1, len(cost) - 2))
+    c0, c1, c2 = cost[i - 1:i + 2]
+    den = c0 - 2 * c1 + c2
+    shift = 0.5 * (c0 - c2) / den if np.isfinite(den) and den > 0 else 0.0
+    return float(grid[i] + np.clip(shift, -1.0, 1.0) * (grid[1] - grid[0]))
