@@ -244,17 +244,22 @@ class GapBridge:
     def _close_gap(self, est) -> float:
         g = self._gap
         T = est.t_s - g.t0
-        if est.continuous and self._restarted is None:   # measured across the gap: the odometer's
+        restarted, self._restarted = self._restarted, None
+        if est.continuous and restarted is None:   # measured across the gap: the odometer's
             self._gap = None          # distance has it all, and the offset stays as it was before it
             self.var_meas += self.p.step_floor_m ** 2
+        elif est.continuous and g.v0 is not None:
+            # measured since a fresh start inside the gap (the offset was set then): up to that
+            # start the gap is the model's, at the speed before it, and so is its uncertainty
+            self._gap = None
+            self.var_gaps += self._model_var(restarted[0] - g.t0, g.v0)
         else:                         # a fresh start: provisionally the model's, settled later
             samples = [(est.t_s, est.distance_m)]
-            if est.continuous:        # with a fresh start inside the gap: measured since then
-                samples.insert(0, self._restarted)
+            if est.continuous:        # with a fresh start inside a gap the model cannot carry
+                samples.insert(0, restarted)
             t1, d1 = samples[0]
             self.offset_m = g.d0 + self._travel(g, t1 - g.t0) - d1
             self._settling = (t1, samples)
-            self._restarted = None
         self._kf_vision = est.distance_m
         return T
 
