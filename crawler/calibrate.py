@@ -62,6 +62,18 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def add_replay_arguments(group, set_example: str = "") -> None:
+    """--pts | --fps, --config, --set: a recording replayed as crawlerd --replay replays it."""
+    times = group.add_mutually_exclusive_group()
+    times.add_argument("--pts", metavar="FILE", help="frame times: rpicam-vid --save-pts or picamera2 pts file")
+    times.add_argument("--fps", type=_number(0.1, 1000, "a frame rate"), metavar="N",
+                       help="frame times of a raw stream without a pts file")
+    group.add_argument("--config", metavar="FILE", help="TOML configuration (default: as crawlerd)")
+    example = f", e.g. --set {set_example}" if set_example else ""
+    group.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
+                       help=f"override one config key{example} (repeatable)")
+
+
 def _number(lo: float, hi: float, what: str):
     def parse(text: str) -> float:
         try:

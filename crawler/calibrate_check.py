@@ -27,7 +27,7 @@ MIN_STEPS = 6               # keyframe steps needed to say anything of the heigh
 
 
 def add_check_arguments(p):
-    from .calibrate import _number, _whole
+    from .calibrate import _number, _whole, add_replay_arguments
 
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("video", nargs="?", metavar="VIDEO", help="a recording of a drive (.h264, .mp4, .mkv)")
@@ -36,13 +36,7 @@ def add_check_arguments(p):
     p.add_argument("--sim", action="store_true", help="with --live: hw_sim's simulated camera (--sim-tilt)")
     p.add_argument("--sim-tilt", type=_number(-80, 80, "degrees"), metavar="DEG",
                    help="with --sim: the simulated camera's real tilt")
-    times = p.add_mutually_exclusive_group()
-    times.add_argument("--pts", metavar="FILE", help="frame times: rpicam-vid --save-pts or picamera2 pts file")
-    times.add_argument("--fps", type=_number(0.1, 1000, "a frame rate"), metavar="N",
-                       help="frame times of a raw stream without a pts file")
-    p.add_argument("--config", metavar="FILE", help="TOML configuration (default: as crawlerd)")
-    p.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
-                   help="override one config key (repeatable)")
+    add_replay_arguments(p)
     p.add_argument("--tilt-tolerance", type=_number(0.01, 20, "degrees"), default=TILT_TOL_DEG, metavar="DEG",
                    help=f"PASS when the tilt found is within DEG of the configured ({TILT_TOL_DEG:g})")
     p.add_argument("--height-tolerance", type=_number(0.1, 100, "millimetres"), default=HEIGHT_TOL_MM,

@@ -28,7 +28,7 @@ MAX_REPLAYS = 3             # per correction, after the first replay
 
 
 def add_drive_arguments(p):
-    from .calibrate import _count, _number
+    from .calibrate import _count, _number, add_replay_arguments
     from .cli import tilt_value
 
     p.add_argument("video", metavar="VIDEO", help="recording of the drive (.h264, .mp4, .mkv)")
@@ -43,13 +43,7 @@ def add_drive_arguments(p):
     end.add_argument("--end-frame", type=_count, metavar="N", help="frame at the second mark")
     end.add_argument("--end-time", type=_number(0, 1e6, "seconds"), metavar="S", help="time of the second mark")
     rep = p.add_argument_group("replay (as crawlerd --replay)")
-    times = rep.add_mutually_exclusive_group()
-    times.add_argument("--pts", metavar="FILE", help="frame times: rpicam-vid --save-pts or picamera2 pts file")
-    times.add_argument("--fps", type=_number(0.1, 1000, "a frame rate"), metavar="N",
-                       help="frame times of a raw stream without a pts file")
-    rep.add_argument("--config", metavar="FILE", help="TOML configuration (default: as crawlerd)")
-    rep.add_argument("--set", metavar="SECTION.KEY=VALUE", action="append", default=[],
-                     help="override one config key, e.g. --set mount.height_m=0.226 (repeatable)")
+    add_replay_arguments(rep, "mount.height_m=0.226")
     rep.add_argument("--tilt", type=tilt_value, metavar="DEG|auto", help="= --set mount.tilt_deg=DEG")
     rep.add_argument("--method", choices=("pixel", "plane", "cylinder"), help="= --set odometry.method=M")
     p.add_argument("--tolerance", type=_number(0.01, 50, "a percentage"), default=SPEC_PCT, metavar="PCT",
