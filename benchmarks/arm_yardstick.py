@@ -12,7 +12,9 @@ system call that does not exist (syscall 0xC0DE, stage): about 2.6 k instruction
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
+import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -97,13 +99,31 @@ def parse_counts(text: str) -> Counts:
     return c
 
 
-def run(args: list[str], cwd: Path = ROOT, quiet: bool = True) -> Counts:
-    """Runs `python3.11 ARGS` on the armhf userland (via benchmarks/armhf/count) and counts it."""
+def run(args: list[str], cwd: Path = ROOT, quiet: bool = True, tries: int = 2) -> Counts:
+    """Runs `python3.11 ARGS` on the armhf userland (via benchmarks/armhf/count) and counts it.
+
+    qemu-user now and then deadlocks a multi-threaded guest (PyAV's decoding threads, seen twice in
+    a few dozen runs): a run that takes longer than ARMCOUNT_TIMEOUT_S (900 s; the longest
+    benchmark run takes about 3 minutes) is killed and started again, once."""
     ensure()
+    timeout = float(os.environ.get("ARMCOUNT_TIMEOUT_S", "900"))
     with tempfile.NamedTemporaryFile("r", suffix=".armcount") as out:
         env = dict(os.environ, ARMCOUNT_OUT=out.name)
-        p = subprocess.run([str(ARMHF / "count"), *args], cwd=cwd, env=env,
-                           capture_output=quiet, text=True)
+        pipe = subprocess.PIPE if quiet else None
+        proc = subprocess.Popen([str(ARMHF / "count"), *args], cwd=cwd, env=env, stdout=pipe, stderr=pipe,
+                                text=True, start_new_session=True)
+        try:
+            stdout, stderr = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+            for child in Path(out.name).parent.glob(Path(out.name).name + ".*"):
+                child.unlink()
+            if tries <= 1:
+                raise SystemExit(f"arm yardstick: python3.11 {' '.join(args)} hung (no end in {timeout:g} s)")
+            print(f"arm yardstick: a run hung under qemu after {timeout:g} s; starting it again", file=sys.stderr)
+            return run(args, cwd, quiet, tries - 1)
+        p = subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
         if p.returncode:
             tail = (p.stderr or "")[-2000:] if quiet else ""
             raise SystemExit(f"arm yardstick: python3.11 {' '.join(args)} failed (exit {p.returncode})\n{tail}")
