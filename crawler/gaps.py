@@ -268,7 +268,12 @@ class GapBridge:
         reopen it: it goes on from where it began."""
         g, (t1, samples) = self._gap, self._settling
         self._settling = None
-        v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if len(samples) >= 2 else None
+        # a gap with no speed before it is settled with the speed after alone, over all of it: that
+        # speed must have been measured for min_history_s at least (a frame interval's reading,
+        # times the gap over the interval, is anything)
+        span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
+        enough = span > 0 and (g.v0 is not None or span >= self.p.min_history_s)
+        v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if enough else None
         if v1 is None:                # reopen: drop what the short measurement added to the history
             while self._hist and self._hist[-1][0] >= t1:
                 self._hist.pop()

@@ -153,6 +153,24 @@ def test_a_run_that_starts_blind_and_flickers_is_settled_with_the_speed_after():
     assert out[-1].sigma_m > 0.9 * (q * T ** 3 / 3) ** 0.5    # the gap's (unseen speed changes) carried on
 
 
+def test_a_run_that_starts_blind_is_not_settled_by_one_frame_interval_of_speed():
+    # heavy compression at the start: one frame, blind, a fresh start whose next frame is one the
+    # encoder repeated (no motion: "standing"), blind again; the crawler drives at 0.5 m/s all along.
+    # Times the whole gap, that one interval's reading would be anything: the gap waits for a real
+    # speed
+    bridge, truth = GapBridge(), (lambda t: 0.5 * t)
+    bridge.update(est(0.0, 0.0, keyframe=True))
+    for i in range(1, 30):
+        bridge.update(est(i / FPS, 0.0, tracking=False))
+    bridge.update(est(30 / FPS, 3.0, continuous=False, keyframe=True))
+    bridge.update(est(31 / FPS, 3.0))                    # the repeated frame
+    for i in range(32, 45):
+        bridge.update(est(i / FPS, 3.0, tracking=False))
+    for i in range(45, 75):
+        b = bridge.update(est(i / FPS, 9.0 + truth(i / FPS) - truth(1.5), continuous=i > 45, keyframe=i % 10 == 5))
+    assert b.distance_m == pytest.approx(truth(74 / FPS), abs=0.01)
+
+
 def test_a_flicker_after_a_gap_the_model_carries_keeps_the_gap_s_uncertainty():
     truth = lambda t: 0.3 * t                            # noqa: E731
     bridge = GapBridge()
