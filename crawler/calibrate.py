@@ -44,6 +44,9 @@ class _Usage(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):    # --tilt must never be taken for --tilt-tolerance
+        super().__init__(*args, **{"allow_abbrev": False, **kwargs})
+
     def error(self, message: str):          # one line, not argparse's usage dump
         raise _Usage(message)
 

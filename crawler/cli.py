@@ -85,7 +85,7 @@ def _interval_list(text: str) -> tuple[tuple[float, float], ...]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description="Visual odometry for in-pipe crawlers.",
+    p = argparse.ArgumentParser(prog=PROG, description="Visual odometry for in-pipe crawlers.", allow_abbrev=False,
                                 epilog="Documentation: docs/odometry.md, docs/deploy.md, docs/topics.md")
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     mode = p.add_argument_group("what to run (default: the live camera)")

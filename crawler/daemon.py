@@ -242,6 +242,7 @@ class Daemon:
     def _step(self, frame, measured):
         self._observe_restart(measured)
         est = self.chain.update(measured, self.wheel.read())
+        est.frame = frame.index               # the source's numbering (dropped and lost frames leave gaps)
         self._count_drops(frame.index)
         self._published_m = est.distance_m
         if self.odometer.reference_seq != (self._reference_at or (None,))[0]:

@@ -108,6 +108,7 @@ def describe(settings: Settings, camera: Camera, default_roi) -> dict:
     """The derived geometry an operator checks before a run (crawlerd --check-config)."""
     roi = resolve_roi(settings.odometry, camera, default_roi)
     worst = check_geometry(settings, camera, roi)
+    pose_params(settings)                 # what a run would refuse, --check-config refuses too
     mount = settings.mount.mount()
     projection = make_projection(settings.odometry.method, mount)
     x, y, w, h = roi

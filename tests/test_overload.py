@@ -26,6 +26,7 @@ class SlowLoop(Output):
         self.seen = []              # (wall time, frame index, frame time) of every measured frame
 
     def write(self, frame, estimate, run):
+        assert estimate.frame == frame.index     # published as the source numbers it: drops leave gaps
         self.seen.append((self.clock(), frame.index, frame.t_s))
         self.sleep(self.seconds)
 

@@ -134,3 +134,14 @@ def test_the_fields_match_the_exact_projection_to_1_percent():
         exact, fit = exact_derivatives(proj, xy), field.at(xy)
         scale = np.abs(exact).max(axis=0)
         assert np.all(np.abs(fit - exact) <= 0.01 * scale), tilt
+
+
+def test_check_takes_no_abbreviated_flags_and_check_config_refuses_what_a_run_would(crawlerd, render_run):
+    # `calibrate check --tilt 20` once read as --tilt-tolerance 20: a PASS for any tilt within 20 deg
+    run = render_run("auto24", tilt_deg=24, speed_m_s=0.3, duration_s=3.0, seed=54)
+    from crawler.calibrate import main as calibrate_main
+
+    assert calibrate_main(["check", str(run["h264"]), "--tilt", "20"]) == 2
+    rc, _, err = crawlerd("--check-config", "--tilt", "auto", "--method", "pixel")
+    assert rc == 2 and "needs [odometry] method" in err
+

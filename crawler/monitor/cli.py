@@ -26,7 +26,11 @@ class UsageError(CrawlerError, ValueError):
 
 
 class _Parser(argparse.ArgumentParser):
-    """argparse, but its errors are one `crawler-monitor: error: ...` line (main prints it), no usage dump."""
+    """argparse, but its errors are one `crawler-monitor: error: ...` line (main prints it), no usage dump,
+    and no abbreviated flags (a prefix of one flag must not silently mean another)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **{"allow_abbrev": False, **kwargs})
 
     def error(self, message):
         raise UsageError(message)
