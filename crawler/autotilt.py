@@ -61,7 +61,7 @@ class FixedTilt:
         self.projection = projection
         self.field = JacobianField(camera, projection, roi)
 
-    def update(self, serial, xy_k, xy_c, moved_px, t_s) -> float:
+    def update(self, serial, xy_k, xy_c, moved_px, t_s, shutter=None) -> float:
         return 0.0
 
     def record(self, hop: Hop):
@@ -101,9 +101,13 @@ class AutoTilt(FixedTilt):
             return math.radians(self.p.tilt.start_sigma_deg if not self.steps else self.p.tilt.step_sigma_deg)
         return math.sqrt(max(self.track.var, 1e-12))
 
-    def update(self, serial, xy_k, xy_c, moved_px, t_s) -> float:
+    def update(self, serial, xy_k, xy_c, moved_px, t_s, shutter=None) -> float:
         """One measured frame of keyframe `serial`: search, or read the last keyframe's tilt. The
-        metres the epoch's closed steps gain from a changed estimate."""
+        metres the epoch's closed steps gain from a changed estimate. `shutter`: each track's
+        rolling-shutter factor (the frame interval over the time between its two exposures): a
+        rolling shutter moves the rows by different times, which would read as tilt."""
+        if shutter is None:
+            shutter = np.ones(len(xy_k))
         before = self.tau
         if serial != self._serial:
             self._read(t_s)
@@ -111,9 +115,9 @@ class AutoTilt(FixedTilt):
         if moved_px >= self.p.acquire_px:
             self._frames += 1
             if self.track is None:
-                self._search_step(serial, moved_px, xy_k, xy_c)
+                self._search_step(serial, moved_px, xy_k, xy_c, shutter)
             elif self._frames % self.p.read_every == 0:
-                self._readings.append(self._reading(xy_k, xy_c))
+                self._readings.append(self._reading(xy_k, xy_c, shutter))
         change = self.tau - before
         for hop in self.hops:
             hop.d += hop.g * change
@@ -150,8 +154,8 @@ class AutoTilt(FixedTilt):
 
     # -- internals ----------------------------------------------------------------------------------
 
-    def _search_step(self, serial, moved_px, xy_k, xy_c):
-        if not self.search.offer(serial, moved_px, (xy_k, xy_c)):
+    def _search_step(self, serial, moved_px, xy_k, xy_c, shutter):
+        if not self.search.offer(serial, moved_px, (xy_k, xy_c, shutter)):
             return
         m, kind = self.projection.mount, type(self.projection)
         found = self.search.solve(lambda t, s: disagreement(kind(replace(m, tilt_rad=t)), *s, robust=True))
@@ -177,14 +181,14 @@ class AutoTilt(FixedTilt):
         self.search = TiltSearch(centre, 3 * math.radians(self.p.tilt.start_sigma_deg))   # a turn: anywhere
         self.track = None
 
-    def _reading(self, xy_k, xy_c):
+    def _reading(self, xy_k, xy_c, shutter):
         """The parabola through the disagreement at the estimate and either side of it: (curvature,
         slope at the estimate, the estimate)."""
         m, kind = self.projection.mount, type(self.projection)
         t0, h = m.tilt_rad + self.tau, math.radians(self.p.reading_half_deg)
         keep = _not_stray(kind(replace(m, tilt_rad=t0)), xy_k, xy_c)
-        xy_k, xy_c = xy_k[keep], xy_c[keep]
-        c_lo, c0, c_hi = (disagreement(kind(replace(m, tilt_rad=t0 + d)), xy_k, xy_c) for d in (-h, 0.0, h))
+        xy_k, xy_c, shutter = xy_k[keep], xy_c[keep], shutter[keep]
+        c_lo, c0, c_hi = (disagreement(kind(replace(m, tilt_rad=t0 + d)), xy_k, xy_c, shutter) for d in (-h, 0.0, h))
         return (c_lo + c_hi - 2 * c0) / (2 * h * h), (c_hi - c_lo) / (2 * h), t0
 
     def _measure_again(self, hop: Hop, new) -> float:
@@ -219,11 +223,14 @@ def _not_stray(projection, xy_k, xy_c, k: float = 6.0) -> np.ndarray:
     return np.all(dev <= k * mad, axis=1)
 
 
-def disagreement(projection, xy_k, xy_c, robust: bool = False) -> float:
-    """How much the features disagree on one step at this projection, per square metre of step.
+def disagreement(projection, xy_k, xy_c, shutter=None, robust: bool = False) -> float:
+    """How much the features disagree on one step at this projection, per square metre of step
+    (each feature's step over one frame interval: `shutter`, its rolling-shutter factor).
     Robust (for the search, whose tracks were chosen at a tilt maybe far off): the log of the
     median spread, so that a frame that agrees sharply somewhere outweighs one with a stray track."""
     d = projection.to_wall(xy_k) - projection.to_wall(xy_c)
+    if shutter is not None:
+        d = d * shutter[:, None]
     if not robust:
         scale = float(np.mean(d[:, 1])) ** 2
         return float(np.var(d[:, 1]) + np.var(d[:, 0])) / scale if scale > 0 else math.inf

@@ -137,7 +137,8 @@ class PoseEstimator:
         self._predict(t_s)
         jk, jc, xy_k = kf.pose[0].take(idx, 0), self.tilt.field.at(xy), kf.pose[1].take(idx, 0)
         moved_px = abs(float(moved[1].mean())) / (self.projection.mount.height_m / self.camera.fy)
-        base = self.tilt.update(kf.pose[2], kf.pose[1].take(t_idx, 0), t_xy, moved_px, t_s)
+        base = self.tilt.update(kf.pose[2], kf.pose[1].take(t_idx, 0), t_xy, moved_px, t_s,
+                                self._shutter(kf, t_idx, t_pts, t_s))
         if self._limit.any():                      # pitch or height estimated at all
             base += self._filter(jk, jc, moved, c.sigma, t_s - kf.t_s)
         step, lat, sens = self._correction(jk, jc, self.tilt.tau)
@@ -150,6 +151,15 @@ class PoseEstimator:
             self._forget()                         # its pitch and height were the tilt's error
         c.step, c.lat, kf.distance = c.step + step, c.lat + lat, kf.distance + base + extra
         return PoseFix(step, lat, base + extra, remount)
+
+    def _shutter(self, kf, idx, pts, t_s):
+        """Each track's rolling-shutter factor: the frame interval over the time between the two
+        exposures of its feature (rows read later moved for longer), as the odometer scales them."""
+        dt = t_s - kf.t_s
+        if self.camera.readout_s <= 0 or dt <= 0:
+            return None
+        span = dt + self.camera.row_time(pts[:, 1] + self._offset[1]) - kf.row_t.take(idx)
+        return dt / np.maximum(span, 0.2 * dt)
 
     def status(self) -> dict:
         """What the daemon's status says of the pose (docs/topics.md)."""

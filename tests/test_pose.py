@@ -145,3 +145,13 @@ def test_check_takes_no_abbreviated_flags_and_check_config_refuses_what_a_run_wo
     rc, _, err = crawlerd("--check-config", "--tilt", "auto", "--method", "pixel")
     assert rc == 2 and "needs [odometry] method" in err
 
+
+
+def test_tilt_auto_on_the_live_window_reads_the_rolling_shutter_as_time_not_tilt(crawlerd, tmp_path):
+    # the simulated camera's live 240x240 window, read out over ~4.5 ms: rows read later moved for
+    # longer, which, not undone in the tilt readings, read as 0.3 deg of tilt (+0.3 % of distance)
+    rc, s, err = crawlerd("--sim", "--no-publish", "--max-frames", 400, "--tilt", "auto", "--sim-tilt", 24,
+                          "--sim-sensor", "imx219", "--state-dir", tmp_path)
+    assert rc == 0, err
+    assert abs(s["pose"]["tilt_deg"] - 24.0) < 0.1
+    assert abs(s["distance_m"] - s["sim_true_distance_m"]) / s["sim_true_distance_m"] < 0.001
