@@ -139,6 +139,16 @@ class AutoTilt(FixedTilt):
             del self.hops[:-self.p.max_hops]
         self._last = None
 
+    def resume(self, tilt_rad: float):
+        """A restarted run's tilt, as if the search had just found it: tracked from there (a camera
+        turned while the daemon was down is a step, found as any other). The projection to use."""
+        m = self.projection.mount
+        self.projection = type(self.projection)(replace(m, tilt_rad=tilt_rad))
+        self.field = JacobianField(self.camera, self.projection, self.roi)
+        self.tau = 0.0
+        self.track = TiltTrack(tilt_rad, self.p.tilt, math.radians(self.p.found_sigma_deg))
+        return self.projection
+
     def remount(self):
         """Beyond remount_deg, move the mount to the estimate and measure the epoch again there:
         (the new projection or None, metres the distance gains)."""

@@ -51,6 +51,10 @@ def validate(data) -> dict:
     if ref is not None and not (isinstance(ref, dict) and _finite(ref.get("distance_m"))
                                 and _finite(ref.get("lateral_m"))):
         data = {k: v for k, v in data.items() if k != "reference"}     # unusable, not fatal
+    tilt = data.get("tilt")
+    if tilt is not None and not (isinstance(tilt, dict) and _finite(tilt.get("deg")) and abs(tilt["deg"]) < 90
+                                 and _finite(tilt.get("sigma_deg")) and tilt["sigma_deg"] >= 0):
+        data = {k: v for k, v in data.items() if k != "tilt"}          # tilt auto searches afresh
     return dict(data, distance_m=float(d))
 
 

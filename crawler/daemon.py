@@ -77,6 +77,7 @@ class Daemon:
         self._resume_m = resume["distance_m"] if resume else 0.0
         self.restart = restart             # RestartGap of a resumed run (restart.py), else None
         self.unmeasured_s = float((resume or {}).get("unmeasured_s") or 0.0)
+        self._resume_tilt = (resume or {}).get("tilt")     # tilt auto's estimate before the restart
         self._reference_at = None          # (reference_seq, published distance) of the odometer's reference
         self.inspection = _resumed_inspection(resume, inspection or Inspection())
         self.chain = chain or DistanceChain(GapBridge(distance_m=self._resume_m))
@@ -101,7 +102,7 @@ class Daemon:
     def state(self) -> dict:
         return {"distance_m": round(self.distance_m, 6), "frames": self.stats.frames, "run_id": self.run_id,
                 "inspection": self.inspection.to_dict(), "unmeasured_s": round(self._unmeasured(), 3),
-                **self.chain.state()}
+                **self.chain.state(), **self.odometer.pose.checkpoint()}
 
     def reference(self):
         """(seq, ROI image, meta) of the frame a restart would measure against, or None."""
@@ -194,6 +195,11 @@ class Daemon:
         (checkpoint, final status, STOPPING) whatever happens, a crash included.
         """
         self.started = self.clock()
+        mount = self.odometer.pose.resume(self._resume_tilt)
+        if mount is not None:
+            self.odometer.remount(mount)
+            _log.warning("tilt auto resumes at %.2f deg, the estimate before the restart",
+                         math.degrees(mount.mount.tilt_rad))
         if self.restart is not None:
             _log.warning("resuming run %s at %.4f m after %.1f s down", self.run_id, self._resume_m,
                          self.restart.down_s)

@@ -77,6 +77,12 @@ class NullPose:
     def frame(self) -> dict:
         return {}
 
+    def checkpoint(self) -> dict:
+        return {}
+
+    def resume(self, saved) -> None:
+        return None
+
 
 PITCH, HEIGHT, K_PITCH, K_HEIGHT = range(4)   # the state: this frame's pose, the keyframe's
 
@@ -160,6 +166,19 @@ class PoseEstimator:
             return None
         span = dt + self.camera.row_time(pts[:, 1] + self._offset[1]) - kf.row_t.take(idx)
         return dt / np.maximum(span, 0.2 * dt)
+
+    def checkpoint(self) -> dict:
+        """What a restarted daemon starts from: tilt auto's estimate once found."""
+        if not self.tilt.auto or self.tilt.track is None:
+            return {}
+        return {"tilt": {"deg": round(self.tilt_deg, 4), "sigma_deg": round(math.degrees(self.tilt.sigma_rad), 4)}}
+
+    def resume(self, saved):
+        """The checkpoint's tilt (crawler/checkpoint.py checked it), for tilt auto: the projection
+        the odometer measures with from the first frame, or None."""
+        if not self.tilt.auto or not saved:
+            return None
+        return self.tilt.resume(math.radians(saved["deg"]))
 
     def status(self) -> dict:
         """What the daemon's status says of the pose (docs/topics.md)."""

@@ -155,3 +155,26 @@ def test_tilt_auto_on_the_live_window_reads_the_rolling_shutter_as_time_not_tilt
     assert rc == 0, err
     assert abs(s["pose"]["tilt_deg"] - 24.0) < 0.1
     assert abs(s["distance_m"] - s["sim_true_distance_m"]) / s["sim_true_distance_m"] < 0.001
+
+
+def test_a_restarted_daemon_resumes_tilt_auto_at_its_estimate(crawlerd, tmp_path):
+    # the checkpoint keeps the tilt once found: the next run measures at it from its first frame,
+    # where a cold start would still be at 0 deg (the search needs three keyframes of motion, some 90 frames)
+    args = ("--sim", "--no-publish", "--tilt", "auto", "--sim-tilt", 24, "--state-dir", tmp_path)
+    rc, s, err = crawlerd(*args, "--max-frames", 240)
+    assert rc == 0, err
+    assert abs(s["pose"]["tilt_deg"] - 24.0) < 0.1
+    saved = json.loads((tmp_path / "checkpoint.json").read_text())["tilt"]
+    assert abs(saved["deg"] - 24.0) < 0.1 and saved["sigma_deg"] >= 0
+    rc, s, err = crawlerd(*args, "--max-frames", 20)
+    assert rc == 0, err
+    assert abs(s["pose"]["tilt_deg"] - 24.0) < 0.3          # (the readings go on refining it)
+
+
+def test_a_checkpoint_tilt_that_is_not_a_tilt_is_dropped_not_fatal():
+    from crawler.checkpoint import validate
+
+    base = {"distance_m": 1.0, "run_id": "abcdef12", "frames": 3}
+    for bad in ({"deg": float("nan"), "sigma_deg": 0.1}, {"deg": 120.0, "sigma_deg": 0.1}, "24", {"deg": 24.0}):
+        assert "tilt" not in validate(dict(base, tilt=bad))
+    assert validate(dict(base, tilt={"deg": 24.0, "sigma_deg": 0.02}))["tilt"]["deg"] == 24.0
