@@ -32,7 +32,7 @@ import os
 import sys
 from pathlib import Path
 
-from .errors import BadConfig, CrawlerError, fail, missing_module
+from .errors import ENDINGS, BadConfig, CrawlerError, ended, fail
 
 PROG = "crawlerd calibrate"
 DEFAULT_MAX_RMS_PX = 1.0
@@ -160,12 +160,8 @@ def main(argv=None) -> int:
         return 2
     except CalibrationFailed as exc:
         return fail(PROG, exc, 1)
-    except CrawlerError as exc:
-        return fail(PROG, exc, 2)
-    except ModuleNotFoundError as exc:
-        return fail(PROG, CrawlerError(missing_module(exc)), 2)
-    except KeyboardInterrupt:
-        return 130
+    except ENDINGS as exc:
+        return ended(PROG, exc)
 
 
 class Progress:

@@ -25,7 +25,7 @@ import sys
 from pathlib import Path
 
 from . import __version__
-from .errors import CrawlerError, fail, missing_module
+from .errors import ENDINGS, ended
 from .zenoh_flags import add_zenoh_flags, zenoh_values
 
 PROG = "crawlerd"
@@ -220,12 +220,8 @@ def main(argv=None) -> int:
                 print(json.dumps(check_config(settings, options), indent=2))
                 return 0
             return run(settings, options, stop=stop)
-        except CrawlerError as exc:
-            return fail(PROG, exc, 2)
-        except ModuleNotFoundError as exc:
-            return fail(PROG, CrawlerError(missing_module(exc)), 2)
-        except KeyboardInterrupt:
-            return 130
+        except ENDINGS as exc:
+            return ended(PROG, exc)
 
 
 if __name__ == "__main__":

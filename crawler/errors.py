@@ -56,3 +56,16 @@ def fail(prog: str, exc: BaseException, code: int) -> int:
         traceback.print_exception(exc)
     print(f"{prog}: error: {exc}", file=sys.stderr)
     return code
+
+
+ENDINGS = (KeyboardInterrupt, ModuleNotFoundError, CrawlerError)   # how a command line's main() may end
+
+
+def ended(prog: str, exc: BaseException) -> int:
+    """The exit code (and the one line) for how a command ended: a bad input or configuration 2, a
+    missing module 2 with what to install, Ctrl-C 130 (one of ENDINGS)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return 130
+    if isinstance(exc, ModuleNotFoundError):
+        return fail(prog, CrawlerError(missing_module(exc)), 2)
+    return fail(prog, exc, 2)
