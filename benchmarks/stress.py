@@ -57,18 +57,6 @@ CASES = {
 }
 
 
-def render(out: Path, name: str, fields: dict) -> Path:
-    from hw_sim import SimConfig, write_run
-
-    json_path = out / f"{name}.json"
-    cfg = SimConfig(**fields)
-    if json_path.exists() and json.loads(json_path.read_text())["config"] == json.loads(
-            json.dumps(cfg.to_dict())):
-        return json_path
-    write_run(cfg, out, name)
-    return json_path
-
-
 def replay(h264: Path, overrides: list[str], log: Path) -> dict:
     from crawler import settings
     from crawler.service import Mode, RunOptions, Service
@@ -97,6 +85,8 @@ def calibration(log: Path, csv: Path) -> dict:
 
 
 def measure(args) -> dict:
+    from accuracy import render
+
     out, name, common, reseed = args
     fields, extra = CASES[name]
     fields = {**fields, "seed": fields["seed"] + reseed}     # another wall, shake and noise, same physics
