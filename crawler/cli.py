@@ -181,6 +181,9 @@ def run(settings, options, hardware=None, stop=None) -> int:
     stopped = bool(stop)
     if stats.frames == 0 and not stats.error and not stopped:
         stats.error = summary["error"] = "no frames were processed"
+    elif stats.frames == 1 and not stats.error and not stopped:
+        stats.error = summary["error"] = ("only one frame could be read: motion needs two (a truncated or "
+                                          "damaged recording?)")
     elif stats.frames and not stats.tracked and not stats.error:
         stats.error = summary["error"] = (
             f"tracking was never acquired in {stats.frames} frames: the wall shows no texture the "

@@ -179,6 +179,10 @@ def test_implausible_rates_still_images_and_blank_videos_are_refused(render_run,
         assert one_error_line(err, "tracking was never acquired in 30 frames"), err
         assert s["error"].startswith("tracking was never acquired")
 
+    one = write_h264(tmp_path / "one.h264", [wall])          # a recording cut after its first frame
+    rc, s, err = crawlerd("--replay", one, "--fps", 30)
+    assert rc == 1 and s["frames"] == 1 and one_error_line(err, "only one frame could be read"), err
+
 
 # -- state --------------------------------------------------------------------------------------------
 
