@@ -199,6 +199,8 @@ class GapBridge:
             self.var_meas += step_var
             self._kf_vision = est.distance_m
         self._out_m = est.distance_m + self.offset_m
+        if self._hist and self._hist[-1][0] >= est.t_s:
+            self._hist.pop()              # a settled gap put this frame in already
         self._hist.append((est.t_s, self._out_m))
         while self._hist and self._hist[0][0] < est.t_s - 2 * self.p.history_s:
             self._hist.popleft()
@@ -285,7 +287,10 @@ class GapBridge:
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
         self.offset_m += correction
         self._out_m += correction
-        self._hist = deque((t, d + correction) if t >= t1 else (t, d) for t, d in self._hist)
+        # the samples the speed after was read from are the history now, also those a reopened gap
+        # had dropped from it: a gap that opens at once is carried at that speed, not held
+        self._hist = deque([(t, d) for t, d in self._hist if t < t1]
+                           + [(t, d + self.offset_m) for t, d in samples])
         # both ends known: the trapezoid's residual; only the speed after, or a stop the model
         # guessed inside the gap: as unsure as while blind
         both = g.v0 is not None and self._stops(g, T) is None

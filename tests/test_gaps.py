@@ -171,6 +171,26 @@ def test_a_run_that_starts_blind_is_not_settled_by_one_frame_interval_of_speed()
     assert b.distance_m == pytest.approx(truth(74 / FPS), abs=0.01)
 
 
+def test_a_gap_right_after_a_settled_one_is_carried_at_the_speed_that_settled_it():
+    # heavy compression: blind from the start, a fresh start, a frame lost, two frames measured
+    # against that start (0.13 s: enough to settle the gap), blind again to the end of the run.
+    # The speed that settled the first gap is the crawler's speed: the second gap is carried at it,
+    # not held (the run would end 0.5 m/s times the second gap short)
+    bridge, truth = GapBridge(), (lambda t: 0.5 * t)
+    bridge.update(est(0.0, 0.0, keyframe=True))
+    for i in range(1, 30):
+        bridge.update(est(i / FPS, 0.0, tracking=False))
+    bridge.update(est(30 / FPS, 3.0, continuous=False, keyframe=True))
+    bridge.update(est(31 / FPS, 3.0, tracking=False))
+    for i in (32, 33, 34):
+        bridge.update(est(i / FPS, 3.0 + truth(i / FPS) - truth(1.0)))
+    b = bridge.update(est(35 / FPS, 3.0, tracking=False))     # settled here: 0.13 s of speed
+    assert b.bridged and b.distance_m == pytest.approx(truth(35 / FPS), abs=5e-3)
+    for i in range(36, 50):
+        b = bridge.update(est(i / FPS, 3.0, tracking=False))
+    assert b.bridged and b.distance_m == pytest.approx(truth(49 / FPS), abs=5e-3)
+
+
 def test_a_flicker_after_a_gap_the_model_carries_keeps_the_gap_s_uncertainty():
     truth = lambda t: 0.3 * t                            # noqa: E731
     bridge = GapBridge()
