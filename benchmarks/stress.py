@@ -1,6 +1,7 @@
 """Stress suite for "never lose distance": hw_sim runs with one hard disturbance each, replayed by crawlerd.
 
     python benchmarks/stress.py [--out DIR] [--jobs N] [--cases a,b] [--markdown] [--set SECTION.KEY=VALUE]
+                                [--reseed N] [--wall skimage:brick|IMAGE]
 
 Each case renders once (cached in --out; the .csv keeps the true tilt, camera height, LED light, wet
 share and lost frames per frame) and is replayed with crawlerd's Daemon as `crawlerd --replay` would
@@ -87,9 +88,11 @@ def calibration(log: Path, csv: Path) -> dict:
 def measure(args) -> dict:
     from accuracy import render
 
-    out, name, common, reseed = args
+    out, name, common, reseed, wall = args
     fields, extra = CASES[name]
     fields = {**fields, "seed": fields["seed"] + reseed}     # another wall, shake and noise, same physics
+    if wall:                                                 # ...or a photograph of a real one
+        fields = {**fields, "texture": "image", "texture_image": wall, "image_mm_per_px": 0.4}
     t0 = time.perf_counter()
     meta = json.loads(render(out, name, fields).read_text())
     t1 = time.perf_counter()
@@ -114,15 +117,20 @@ def main(argv=None):
     ap.add_argument("--cases", help="comma-separated subset of the cases")
     ap.add_argument("--reseed", type=int, default=0,
                     help="add this to every case's seed: the same disturbances on another wall (a held-out check)")
+    ap.add_argument("--wall", metavar="IMAGE",
+                    help="every case on this photographed wall instead of its own texture: a grey image "
+                         "file, or skimage:brick|gravel|grass (a held-out check)")
     args = ap.parse_args(argv)
     out = Path(args.out) if not args.reseed else Path(args.out) / f"reseed{args.reseed}"
+    if args.wall:
+        out = out / ("wall-" + Path(args.wall.split(":")[-1]).stem)
 
     out.mkdir(parents=True, exist_ok=True)
     names = args.cases.split(",") if args.cases else list(CASES)
     t0 = time.time()
     rows = []
     with ProcessPoolExecutor(args.jobs) as pool:
-        for row in pool.map(measure, [(out, n, args.set, args.reseed) for n in names]):
+        for row in pool.map(measure, [(out, n, args.set, args.reseed, args.wall) for n in names]):
             rows.append(row)
             w2 = "-" if row["within_2sigma"] is None else f"{100 * row['within_2sigma']:.0f} %"
             print(f"[{time.time() - t0:6.0f} s] {row['case']:34s} {row['err_pct']:+8.3f} %  lost {row['lost']}  "

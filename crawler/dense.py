@@ -28,6 +28,8 @@ class DenseParams:
     noise_px: float = 0.4             # 1-sigma error of one shift, full-resolution pixels
     rel_error: float = 0.03           # ...and of its scale: one shift for a whole region, read 0.4-3 % short on smooth walls
     dark_share: float = 0.2           # a region darker than this share of the lit wall: nothing to see
+    min_energy_dn: float = 0.4        # smoother than a sensor's noise (flow.texture_energy): the encoder
+                                      # flattened it, and what still changes is the light, not the wall
     min_changed: float = 0.2          # fewer pixels changed at all since the last frame: the encoder froze it
     confirm: int = 3                  # shifts in a row that must agree before any is believed...
     agree: float = 0.2                # ...within this share of each other (or a pixel)
@@ -54,15 +56,16 @@ class DenseShift:
         self._last_dv = None          # the last shift handed out, once confirmed
 
     def shift(self, roi: np.ndarray):
-        """((du, dv), response): the shift since the last one returned (the sum of the confirmed
-        frame-to-frame shifts), or None while warming up, unsure or waiting for confirmation."""
+        """((du, dv), response, frames): the shift since the last one returned (the sum of the
+        confirmed frame-to-frame shifts, over this many frame intervals), or None while warming up,
+        unsure or waiting for confirmation."""
         found = self._frame_shift(roi)
         if found is None:
             self._pending, self._last_dv = [], None
             return None
         if self._last_dv is not None and self._agree([self._last_dv, found[0][1]]):
             self._last_dv = found[0][1]               # confirmed before, and it goes on
-            return found
+            return (*found, 1)
         self._last_dv = None
         self._pending.append(found)
         recent = [dv for (_, dv), _ in self._pending[-self.p.confirm:]]
@@ -72,8 +75,9 @@ class DenseShift:
         du = sum(s[0] for s, _ in self._pending)
         dv = sum(s[1] for s, _ in self._pending)
         response = min(r for _, r in self._pending)
+        frames = len(self._pending)
         self._pending, self._last_dv = [], recent[-1]
-        return (du, dv), response
+        return (du, dv), response, frames
 
     def _agree(self, dvs) -> bool:
         lo, hi = min(dvs), max(dvs)

@@ -11,9 +11,13 @@ afresh (its distance does not). This stage turns that into a distance that never
   trapezoid of the speeds before and after (a constant acceleration over the gap), or, when the
   model had the crawler stop inside the gap, its braking to a stop and a start at the same rate up
   to the speed after, after a stand the video does not show (the middle of the stands possible). A
-  measurement too short to give a speed does not close the gap: if the wall is lost again at once,
-  the gap simply goes on from where it began, and frames measured after that short start are
-  continuous with it, not with the frames before the gap;
+  gap long enough to stop and start again in may hide a stand the model did not see coming: the
+  trapezoid stands, but its uncertainty spans everything down to braking and starting at the
+  crawler's best. A measurement too short to give a speed does not close the gap: if the wall is
+  lost again at once, the gap simply goes on from where it began, and frames measured after that
+  short start are continuous with it, not with the frames before the gap. A fresh start that
+  knows its motion over a few frames (a confirmed dense shift: `since`) counts them as measured
+  speed, and the speed that settled a gap carries the next one if it opens at once;
 - every estimate carries `sigma_m`, its 1-sigma uncertainty: the measurement's own (closed keyframe
   steps: the spread of the tracks over their number, and a scale term), the frame's jitter (what
   moves all tracks at once and so is not in their spread: the camera pitching on a bouncing car,
@@ -89,6 +93,7 @@ class GapBridge:
         self._jitter_var = 0.0        # the frame's pose/compression jitter (variance, m^2)
         self._jitter_n = 0
         self._last2: list = []        # the last two measured (t, vision distance), for that
+        self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
 
     @property
     def sigma_m(self) -> float:
@@ -113,8 +118,12 @@ class GapBridge:
     def _motion_before(self, t0: float):
         """(speed, acceleration) at t0 from the recent measured frames (None, 0: never measured)."""
         h = [(t, d) for t, d in self._hist if t >= t0 - self.p.history_s]
-        if len(h) < 2 or h[-1][0] - h[0][0] < self.p.min_history_s:
-            return None, 0.0          # one frame interval of a video that may be lying (a bad start)
+        if len(h) < 2 or h[-1][0] - h[0][0] < self.p.min_history_s - _TIME_EPS:
+            # one frame interval of a video that may be lying (a bad start); but a gap that opens
+            # as the one before it settled goes on at the speed that settled it
+            if self._settled_v is not None and self._settled_v[0] >= t0 - _TIME_EPS:
+                return self._settled_v[1], 0.0
+            return None, 0.0
         ts, ds = [t - t0 for t, _ in h], [d for _, d in h]
         if len(h) < 5 or ts[-1] - ts[0] < 0.5 * self.p.history_s:
             return _slope(ts, ds), 0.0
@@ -152,7 +161,17 @@ class GapBridge:
             sv = self.p.unknown_speed_m_s
         if settled:
             return 0.5 * (sv * T) ** 2 + q * T ** 3 / 12.0
-        return (sv * T) ** 2 + q * T ** 3 / 3.0
+        return (sv * T) ** 2 + q * T ** 3 / 3.0 + self._stand_var(T, v0)
+
+    def _stand_var(self, T: float, v0: float | None) -> float:
+        """While blind longer than it takes to brake, the crawler may be standing (an operator
+        stops to look): anything from braking at its best to driving on. Even odds of either, a
+        stand uniform over that range: mean square range^2 / 6 (the settled gap's twin is in
+        _settled_travel)."""
+        a = self.p.max_accel_m_s2
+        if v0 is None or T <= abs(v0) / a:
+            return 0.0
+        return (abs(v0) * T - v0 * v0 / (2 * a)) ** 2 / 6.0
 
     # -- blind ----------------------------------------------------------------------------------------
 
@@ -179,6 +198,10 @@ class GapBridge:
 
     def _tracked(self, est) -> Bridged:
         gap_T, gain = 0.0, getattr(est, "remeasured_m", 0.0)    # (a plain estimate has no re-measure)
+        if self._settling is not None and not est.continuous:
+            # another fresh start while the last one settles: what was measured since that one
+            # settles the gap (or, too short, reopens it); this frame's motion is unknown again
+            self._settle_or_reopen()
         if self._gap is None and not est.continuous and self._hist:
             t0 = self._hist[-1][0]            # a fresh start right after a measured frame: a gap of one
             self._gap = _Gap(t0, self._out_m, *self._motion_before(t0))
@@ -255,10 +278,14 @@ class GapBridge:
             # start the gap is the model's, at the speed before it, and so is its uncertainty
             self._gap = None
             self.var_gaps += self._model_var(restarted[0] - g.t0, g.v0)
+            self._hist.append((restarted[0], restarted[1] + self.offset_m))   # measured again: a speed
         else:                         # a fresh start: provisionally the model's, settled later
             samples = [(est.t_s, est.distance_m)]
+            since = getattr(est, "since", None)
             if est.continuous:        # with a fresh start inside a gap the model cannot carry
                 samples.insert(0, restarted)
+            elif since is not None and g.t0 < since[0] < est.t_s:
+                samples.insert(0, since)  # a fresh start that knows its motion over a few frames
             t1, d1 = samples[0]
             self.offset_m = g.d0 + self._travel(g, t1 - g.t0) - d1
             self._settling = (t1, samples)
@@ -274,7 +301,7 @@ class GapBridge:
         # speed must have been measured for min_history_s at least (a frame interval's reading,
         # times the gap over the interval, is anything)
         span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
-        enough = span > 0 and (g.v0 is not None or span >= self.p.min_history_s)
+        enough = span > 0 and (g.v0 is not None or span >= self.p.min_history_s - _TIME_EPS)
         v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if enough else None
         if v1 is None:                # reopen: drop what the short measurement added to the history
             while self._hist and self._hist[-1][0] >= t1:
@@ -283,6 +310,7 @@ class GapBridge:
             self._restarted = samples[0]
             return
         T = t1 - g.t0
+        self._settled_v = (samples[-1][0], v1)
         corrected, unseen_var = self._settled_travel(g, T, v1)
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
         self.offset_m += correction
@@ -314,7 +342,19 @@ class GapBridge:
             return self._travel(g, T) + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
         if stop is not None:
             return self._travel(g, T), 0.0    # stopped, and still stopped
-        return 0.5 * (g.v0 + v1) * T, 0.0     # a constant acceleration over the gap
+        trapezoid = 0.5 * (g.v0 + v1) * T     # a constant acceleration over the gap
+        # ...or, in a gap long enough to brake to a stop and start again, a stand the video does not
+        # show (an operator stops to look): anything down to braking and starting at the crawler's
+        # best. Even odds of driving through and of a stand of any length: an error uniform over
+        # that range half the time, mean square range^2 / 6
+        a = self.p.max_accel_m_s2
+        if g.v0 * v1 > 0 and T > (abs(g.v0) + abs(v1)) / a:
+            least = math.copysign((g.v0 * g.v0 + v1 * v1) / (2 * a), v1)
+            return trapezoid, (trapezoid - least) ** 2 / 6.0
+        return trapezoid, 0.0
+
+
+_TIME_EPS = 1e-6                  # frame times are sums of intervals: 3 / 30 s may come out under 0.1 s
 
 
 def _remeasured(samples: list, gain_m: float):

@@ -15,6 +15,7 @@ measured are reported as lost; gaps.py carries the distance across them and says
 from __future__ import annotations
 
 import math
+from collections import deque
 
 import cv2
 import numpy as np
@@ -69,6 +70,7 @@ class Odometer:
         self._good_coarse = None   # quarter-size ROI of the last tracked frame, for the guess
         self._good_roi, self._good_at = None, (distance, lateral)   # ...and its distance, lateral
         self._prev_t = None
+        self._times = deque(maxlen=self.params.dense.confirm + 1)   # the last frames' times (the dense shift's span)
         self._last_good_t = 0.0
         self._prev_pts = None      # last tracked positions of the keyframe's features (ROI px)
         self._prev_origin = None   # ...and where they were found: (keyframe, indices)
@@ -102,7 +104,7 @@ class Odometer:
         try:
             energy = flow.texture_energy(roi)
             if not self._gates.textured(energy):
-                return self._untextured(roi, t_s)
+                return self._untextured(roi, t_s, energy)
             self._dense.reset()
             est = self._start(roi, t_s) if self._kf is None else self._measure(roi, t_s)
             if est.tracking:
@@ -110,6 +112,7 @@ class Odometer:
             return est
         finally:
             self._prev_t = t_s
+            self._times.append(t_s)
 
     @property
     def reference(self):
@@ -338,22 +341,25 @@ class Odometer:
             self._unmeasured_since = t_s
         return self._estimate(t_s, False, 0, 0, None, keyframe=False)
 
-    def _untextured(self, roi, t_s) -> Estimate:
+    def _untextured(self, roi, t_s, energy: float) -> Estimate:
         """Too little texture for features: the dense shift, if the wall is lit and it finds one."""
-        if self._gates.dark(roi):
-            self._dense.reset()               # an LED blackout: nothing to see at all
+        if self._gates.dark(roi) or energy < self.params.dense.min_energy_dn:
+            self._dense.reset()               # an LED blackout, or a frame the encoder flattened
             return self._blind(t_s)
         found = self._dense.shift(roi)
         dt = t_s - self._prev_t if self._prev_t is not None else 0.0
         if found is None or dt <= 0:
             return self._blind(t_s)
-        (du, dv), response = found
+        (du, dv), response, frames = found
         jyv, jyu, jsv, jsu = self._dense_jac
         step, lat = jyv * dv + jyu * du, jsv * dv + jsu * du
         v = step / dt
         if not self._gates.plausible(v, t_s):
             return self._blind(t_s)
         continuous = self._unmeasured_since is None and not self._blind_restart
+        # the shift covers the last `frames` frame intervals (_times holds the frames before this one):
+        # after a gap, the speed is known over them
+        since = (self._times[-frames], self.distance) if len(self._times) >= frames else None
         self.distance += step
         self.lateral += lat
         self._kf, self._prev_pts = None, None     # features start afresh when texture returns
@@ -367,6 +373,8 @@ class Odometer:
         noise = math.hypot(self.params.dense.noise_px * self.m_per_px, self.params.dense.rel_error * step)
         est = self._estimate(t_s, True, 0, 0, noise, keyframe=True)
         est.quality, est.continuous = min(1.0, response) * 0.3, continuous
+        if not continuous:
+            est.since = since
         return est
 
     def _lost(self, img, t_s, n_tracked, n_visible) -> Estimate:

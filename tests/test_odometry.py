@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from crawler.geometry import Camera, Mount, make_projection
+from crawler.flow import texture_energy
 from crawler.odometry import Odometer, SpeedFilter, robust_step
 
 CAM = Camera.from_fov(640, 480, 37.16, 53.50)
@@ -161,8 +162,29 @@ def test_a_faint_wall_is_measured_by_the_dense_shift_with_a_lower_quality(textur
         ests.append(odo.update(img, i / 30))
     dense = [e for e in ests[10:] if e.tracking]
     assert len(dense) > 30 and all(e.quality <= 0.3 and e.inliers == 0 for e in dense)
-    # the running mean's warm-up is not measured: the first dense frame says so (the bridge carries it)
+    # the running mean's warm-up is not measured: the first dense frame says so (the bridge carries it),
+    # and says from which frame on its shift is known (the confirmed shifts: a speed for the bridge)
     assert not dense[0].continuous and all(e.continuous for e in dense[3:])
+    t0, d0 = dense[0].since
+    assert t0 < dense[0].t_s and (dense[0].distance_m - d0) / (dense[0].t_s - t0) == pytest.approx(
+        8.0 * 30 * M_PER_PX, rel=0.05)
     steps = np.diff([e.distance_m for e in ests[30:]]) / M_PER_PX
     # on so smooth a wall the shift reads a few % short (docs/odometry.md), within its sigma (3 %)
     assert np.all(np.abs(steps - 8.0) < 0.65) and abs(steps.mean() - 8.0) < 0.03 * 8.0
+
+
+def test_a_frame_smoother_than_sensor_noise_is_not_measured_at_all(texture):
+    # a real sensor's frame always has its noise; one without is a frame the encoder flattened, and
+    # what still changes in it is the light (fixed in the image), not the wall: no dense shift of it.
+    # The wall's shading here is as faint as the dense test's, the noise the encoder took away
+    odo, _ = run(texture, np.arange(10) * 8.0)
+    faint = cv2.GaussianBlur(texture.astype(np.float32), (0, 0), 6.0)
+    faint = 120 + 0.03 * (faint - faint.mean()) / faint.std() * 255 / 4
+    energy, ests = [], []
+    for i in range(10, 40):
+        m = np.float32([[1, 0, 0], [0, 1, 8.0 * i - 5000]])
+        img = np.round(cv2.warpAffine(faint, m, (640, 480), flags=cv2.INTER_LINEAR)).astype(np.uint8)
+        energy.append(texture_energy(img[ROI[1]:ROI[1] + ROI[3], ROI[0]:ROI[0] + ROI[2]]))
+        ests.append(odo.update(img, i / 30))
+    assert max(energy) < 0.4                              # what flattened video shows (docs/odometry.md)
+    assert not any(e.tracking for e in ests)
