@@ -52,32 +52,37 @@ class DenseShift:
         self._prev = None             # the last flat-fielded frame
         self._prev_small = None       # ...and the last frame as it came, at that level
         self._frames = 0
-        self._pending: list = []      # shifts found but not yet confirmed by the next ones
+        self._pending: list = []      # shifts found but not yet confirmed by the next ones...
+        self._pending_t = []          # ...and the time of the frame each starts from
         self._last_dv = None          # the last shift handed out, once confirmed
+        self._prev_t = None           # the last frame's time
 
-    def shift(self, roi: np.ndarray):
-        """((du, dv), response, frames): the shift since the last one returned (the sum of the
-        confirmed frame-to-frame shifts, over this many frame intervals), or None while warming up,
-        unsure or waiting for confirmation."""
-        found = self._frame_shift(roi)
+    def shift(self, roi: np.ndarray, t_s: float):
+        """((du, dv), response, since_s): the shift since the last one returned (the sum of the
+        confirmed frame-to-frame shifts, from the frame taken at since_s), or None while warming
+        up, unsure or waiting for confirmation."""
+        found, since = self._frame_shift(roi), self._prev_t
+        self._prev_t = t_s
         if found is None:
-            self._pending, self._last_dv = [], None
+            self._pending, self._pending_t, self._last_dv = [], [], None
             return None
         if self._last_dv is not None and self._agree([self._last_dv, found[0][1]]):
             self._last_dv = found[0][1]               # confirmed before, and it goes on
-            return (*found, 1)
+            return (*found, since)
         self._last_dv = None
         self._pending.append(found)
+        self._pending_t.append(since)
         recent = [dv for (_, dv), _ in self._pending[-self.p.confirm:]]
         if len(recent) < self.p.confirm or not self._agree(recent):
-            self._pending = self._pending[-(self.p.confirm - 1):]
+            keep = self.p.confirm - 1
+            self._pending, self._pending_t = self._pending[-keep:], self._pending_t[-keep:]
             return None
         du = sum(s[0] for s, _ in self._pending)
         dv = sum(s[1] for s, _ in self._pending)
         response = min(r for _, r in self._pending)
-        frames = len(self._pending)
-        self._pending, self._last_dv = [], recent[-1]
-        return (du, dv), response, frames
+        since = self._pending_t[0]
+        self._pending, self._pending_t, self._last_dv = [], [], recent[-1]
+        return (du, dv), response, since
 
     def _agree(self, dvs) -> bool:
         lo, hi = min(dvs), max(dvs)

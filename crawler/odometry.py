@@ -15,7 +15,6 @@ measured are reported as lost; gaps.py carries the distance across them and says
 from __future__ import annotations
 
 import math
-from collections import deque
 
 import cv2
 import numpy as np
@@ -70,7 +69,6 @@ class Odometer:
         self._good_coarse = None   # quarter-size ROI of the last tracked frame, for the guess
         self._good_roi, self._good_at = None, (distance, lateral)   # ...and its distance, lateral
         self._prev_t = None
-        self._times = deque(maxlen=self.params.dense.confirm + 1)   # the last frames' times (the dense shift's span)
         self._last_good_t = 0.0
         self._prev_pts = None      # last tracked positions of the keyframe's features (ROI px)
         self._prev_origin = None   # ...and where they were found: (keyframe, indices)
@@ -112,7 +110,6 @@ class Odometer:
             return est
         finally:
             self._prev_t = t_s
-            self._times.append(t_s)
 
     @property
     def reference(self):
@@ -346,20 +343,17 @@ class Odometer:
         if self._gates.dark(roi) or energy < self.params.dense.min_energy_dn:
             self._dense.reset()               # an LED blackout, or a frame the encoder flattened
             return self._blind(t_s)
-        found = self._dense.shift(roi)
+        found = self._dense.shift(roi, t_s)
         dt = t_s - self._prev_t if self._prev_t is not None else 0.0
         if found is None or dt <= 0:
             return self._blind(t_s)
-        (du, dv), response, frames = found
+        (du, dv), response, since_s = found
         jyv, jyu, jsv, jsu = self._dense_jac
         step, lat = jyv * dv + jyu * du, jsv * dv + jsu * du
         v = step / dt
         if not self._gates.plausible(v, t_s):
             return self._blind(t_s)
         continuous = self._unmeasured_since is None and not self._blind_restart
-        # the shift covers the last `frames` frame intervals (_times holds the frames before this one):
-        # after a gap, the speed is known over them
-        since = (self._times[-frames], self.distance) if len(self._times) >= frames else None
         self.distance += step
         self.lateral += lat
         self._kf, self._prev_pts = None, None     # features start afresh when texture returns
@@ -373,8 +367,8 @@ class Odometer:
         noise = math.hypot(self.params.dense.noise_px * self.m_per_px, self.params.dense.rel_error * step)
         est = self._estimate(t_s, True, 0, 0, noise, keyframe=True)
         est.quality, est.continuous = min(1.0, response) * 0.3, continuous
-        if not continuous:
-            est.since = since
+        if not continuous:                    # after a gap: the speed is known over the confirmed shifts
+            est.since = (since_s, self.distance - step)
         return est
 
     def _lost(self, img, t_s, n_tracked, n_visible) -> Estimate:

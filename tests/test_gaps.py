@@ -153,16 +153,22 @@ def test_a_run_that_starts_blind_and_flickers_is_settled_with_the_speed_after():
     assert out[-1].sigma_m > 0.9 * (q * T ** 3 / 3) ** 0.5    # the gap's (unseen speed changes) carried on
 
 
+def blind_start() -> GapBridge:
+    """A bridge fed the run's first frame, 1 s blind, then a fresh start (at frame 30, vision 3.0 m)."""
+    bridge = GapBridge()
+    bridge.update(est(0.0, 0.0, keyframe=True))
+    for i in range(1, 30):
+        bridge.update(est(i / FPS, 0.0, tracking=False))
+    bridge.update(est(30 / FPS, 3.0, continuous=False, keyframe=True))
+    return bridge
+
+
 def test_a_run_that_starts_blind_is_not_settled_by_one_frame_interval_of_speed():
     # heavy compression at the start: one frame, blind, a fresh start whose next frame is one the
     # encoder repeated (no motion: "standing"), blind again; the crawler drives at 0.5 m/s all along.
     # Times the whole gap, that one interval's reading would be anything: the gap waits for a real
     # speed
-    bridge, truth = GapBridge(), (lambda t: 0.5 * t)
-    bridge.update(est(0.0, 0.0, keyframe=True))
-    for i in range(1, 30):
-        bridge.update(est(i / FPS, 0.0, tracking=False))
-    bridge.update(est(30 / FPS, 3.0, continuous=False, keyframe=True))
+    bridge, truth = blind_start(), (lambda t: 0.5 * t)
     bridge.update(est(31 / FPS, 3.0))                    # the repeated frame
     for i in range(32, 45):
         bridge.update(est(i / FPS, 3.0, tracking=False))
@@ -176,11 +182,7 @@ def test_a_gap_right_after_a_settled_one_is_carried_at_the_speed_that_settled_it
     # against that start (0.13 s: enough to settle the gap), blind again to the end of the run.
     # The speed that settled the first gap is the crawler's speed: the second gap is carried at it,
     # not held (the run would end 0.5 m/s times the second gap short)
-    bridge, truth = GapBridge(), (lambda t: 0.5 * t)
-    bridge.update(est(0.0, 0.0, keyframe=True))
-    for i in range(1, 30):
-        bridge.update(est(i / FPS, 0.0, tracking=False))
-    bridge.update(est(30 / FPS, 3.0, continuous=False, keyframe=True))
+    bridge, truth = blind_start(), (lambda t: 0.5 * t)
     bridge.update(est(31 / FPS, 3.0, tracking=False))
     for i in (32, 33, 34):
         bridge.update(est(i / FPS, 3.0 + truth(i / FPS) - truth(1.0)))
