@@ -1,7 +1,7 @@
 """Stress suite for "never lose distance": hw_sim runs with one hard disturbance each, replayed by crawlerd.
 
     python benchmarks/stress.py [--out DIR] [--jobs N] [--cases a,b] [--markdown] [--set SECTION.KEY=VALUE]
-                                [--reseed N] [--wall skimage:brick|IMAGE]
+                                [--reseed N] [--wall skimage:brick|IMAGE] [--held-out]
 
 Each case renders once (cached in --out; the .csv keeps the true tilt, camera height, LED light, wet
 share and lost frames per frame) and is replayed with crawlerd's Daemon as `crawlerd --replay` would
@@ -56,6 +56,20 @@ CASES = {
                                    wet_patches=((0.9, 1.5),), led_blackouts=((5.0, 5.5),),
                                    dropped_bursts=((9.0, 9.5),), exposure_ms=2.0, **SHAKE, **LIT), []),
 }
+
+# held out (--held-out): the same disturbances at other tilts and speeds, never tuned on
+HELD_OUT = {
+    "wet-highlight-40deg-0.2": ("wet-highlight-0deg-0.3", dict(tilt_deg=40, speed_m_s=0.2, seed=121)),
+    "blackout-0deg-0.6": ("blackout-24deg-0.4", dict(tilt_deg=0, speed_m_s=0.6, seed=122)),
+    "drop-burst-0deg-0.4": ("drop-burst-40deg-0.1", dict(tilt_deg=0, speed_m_s=0.4, seed=123)),
+    "crf38-masonry-shake-40deg-0.3": ("crf35-masonry-shake-24deg-0.5", dict(tilt_deg=40, speed_m_s=0.3, crf=38,
+                                                                             seed=124)),
+    "all-at-once-0deg-0.3": ("all-at-once-24deg-0.4", dict(tilt_deg=0, speed_m_s=0.3, seed=128)),
+    "all-at-once-40deg-0.5": ("all-at-once-24deg-0.4", dict(tilt_deg=40, speed_m_s=0.5, seed=129)),
+}
+for _name, (_base, _change) in HELD_OUT.items():
+    CASES[_name] = ({**CASES[_base][0], **_change}, CASES[_base][1])
+MAIN = [n for n in CASES if n not in HELD_OUT]
 
 
 def replay(h264: Path, overrides: list[str], log: Path) -> dict:
@@ -117,6 +131,8 @@ def main(argv=None):
     ap.add_argument("--cases", help="comma-separated subset of the cases")
     ap.add_argument("--reseed", type=int, default=0,
                     help="add this to every case's seed: the same disturbances on another wall (a held-out check)")
+    ap.add_argument("--held-out", action="store_true",
+                    help="the held-out variants instead: the same disturbances at other tilts and speeds")
     ap.add_argument("--wall", metavar="IMAGE",
                     help="every case on this photographed wall instead of its own texture: a grey image "
                          "file, or skimage:brick|gravel|grass (a held-out check)")
@@ -126,7 +142,7 @@ def main(argv=None):
         out = out / ("wall-" + Path(args.wall.split(":")[-1]).stem)
 
     out.mkdir(parents=True, exist_ok=True)
-    names = args.cases.split(",") if args.cases else list(CASES)
+    names = args.cases.split(",") if args.cases else list(HELD_OUT) if args.held_out else MAIN
     t0 = time.time()
     rows = []
     with ProcessPoolExecutor(args.jobs) as pool:
