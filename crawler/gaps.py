@@ -72,6 +72,7 @@ class _Gap:
     d0: float                         # the distance published then
     v0: float | None                  # speed then (None: never measured)
     a0: float                         # acceleration then (0 if unknown)
+    sa: float = 0.0                   # ...and its 1-sigma error
 
 
 class GapBridge:
@@ -116,20 +117,30 @@ class GapBridge:
     # -- the motion model ------------------------------------------------------------------------------
 
     def _motion_before(self, t0: float):
-        """(speed, acceleration) at t0 from the recent measured frames (None, 0: never measured)."""
+        """(speed, acceleration, its 1-sigma error) at t0 from the recent measured frames (None: never measured)."""
+        def short(h):
+            return len(h) < 2 or h[-1][0] - h[0][0] < self.p.min_history_s - _TIME_EPS
+
         h = [(t, d) for t, d in self._hist if t >= t0 - self.p.history_s]
-        if len(h) < 2 or h[-1][0] - h[0][0] < self.p.min_history_s - _TIME_EPS:
+        if short(h):                  # a gap just before cut the stretch short: the longer memory
+            h = list(self._hist)
+        if short(h):
             # one frame interval of a video that may be lying (a bad start); but a gap that opens
             # as the one before it settled goes on at the speed that settled it
             if self._settled_v is not None and self._settled_v[0] >= t0 - _TIME_EPS:
-                return self._settled_v[1], 0.0
-            return None, 0.0
+                return self._settled_v[1], 0.0, 0.0
+            return None, 0.0, 0.0
         ts, ds = [t - t0 for t, _ in h], [d for _, d in h]
         if len(h) < 5 or ts[-1] - ts[0] < 0.5 * self.p.history_s:
-            return _slope(ts, ds), 0.0
-        _, v, a2 = _quadratic(ts, ds)
-        a = max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, 2 * a2))
-        return v, (a if abs(a) >= self.p.min_accel_m_s2 else 0.0)
+            return _slope(ts, ds), 0.0, 0.0
+        # back in time from t0: a ramp (braking, speeding up) that began inside the window, after
+        # a cruise: the speed and rate at t0 (a quadratic over the window blurs a late brake)
+        # Only a brake is carried into the gap (it ends in a stop); a crawler speeding up goes on at
+        # the speed seen (where its ramp ends no frame shows: the speed after the gap settles it)
+        v_back, a, sa = _ramp(ts, ds)
+        if abs(a) < max(self.p.min_accel_m_s2, 3 * sa) or a * v_back < 0:
+            return _slope(ts, ds), 0.0, 0.0
+        return -v_back, max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, a)), sa
 
     def _travel(self, g: _Gap, T: float) -> float:
         """Distance over T at the speed and acceleration before the gap; a crawler that was braking
@@ -150,7 +161,7 @@ class GapBridge:
             return None
         return -g.v0 / g.a0
 
-    def _model_var(self, T: float, v0: float | None, settled: bool = False) -> float:
+    def _model_var(self, T: float, v0: float | None, settled: bool = False, sa: float = 0.0) -> float:
         """Variance of a gap of T carried by the model. The speed wanders like a random walk the
         camera did not see (variance speed_diffusion * t): its integral over the gap has variance
         q T^3 / 3 with only the speed before known, q T^3 / 12 once the speed after settles it (a
@@ -161,7 +172,7 @@ class GapBridge:
             sv = self.p.unknown_speed_m_s
         if settled:
             return 0.5 * (sv * T) ** 2 + q * T ** 3 / 12.0
-        return (sv * T) ** 2 + q * T ** 3 / 3.0 + self._stand_var(T, v0)
+        return (sv * T) ** 2 + q * T ** 3 / 3.0 + self._stand_var(T, v0) + (0.5 * sa * T * T) ** 2
 
     def _stand_var(self, T: float, v0: float | None) -> float:
         """While blind longer than it takes to brake, the crawler may be standing (an operator
@@ -187,7 +198,7 @@ class GapBridge:
             self._gap_prev_var = 0.0
         g = self._gap
         T = est.t_s - g.t0
-        var = self._model_var(T, g.v0)
+        var = self._model_var(T, g.v0, sa=g.sa)
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
         out = g.d0 + self._travel(g, T)
@@ -231,7 +242,7 @@ class GapBridge:
         total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var) + jitter
         if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
             g = self._gap
-            total += self._model_var(self._settling[0] - g.t0, g.v0)
+            total += self._model_var(self._settling[0] - g.t0, g.v0, sa=g.sa)
         # for the fusion: the white part only (the pose term is slow, a filter must not average it)
         noise = math.hypot(self._frame_noise(est), math.sqrt(self._jitter_var))
         return Bridged(self._out_m, math.sqrt(total), False, noise, gap_T)
@@ -277,7 +288,7 @@ class GapBridge:
             # measured since a fresh start inside the gap (the offset was set then): up to that
             # start the gap is the model's, at the speed before it, and so is its uncertainty
             self._gap = None
-            self.var_gaps += self._model_var(restarted[0] - g.t0, g.v0)
+            self.var_gaps += self._model_var(restarted[0] - g.t0, g.v0, sa=g.sa)
             self._hist.append((restarted[0], restarted[1] + self.offset_m))   # measured again: a speed
         else:                         # a fresh start: provisionally the model's, settled later
             samples = [(est.t_s, est.distance_m)]
@@ -303,6 +314,13 @@ class GapBridge:
         span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
         enough = span > 0 and (g.v0 is not None or span >= self.p.min_history_s - _TIME_EPS)
         v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if enough else None
+        a1 = 0.0
+        if v1 is not None and len(samples) >= 5 and span >= 0.5 * self.p.history_s:
+            # speeding up or slowing down since it was seen again: the speed at the gap's end, and
+            # the rate (a crawler still speeding up started not long before)
+            v_end, a, sa = _ramp([t - t1 for t, _ in samples], [d for _, d in samples])
+            if abs(a) >= max(self.p.min_accel_m_s2, 3 * sa):
+                v1, a1 = v_end, max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, a))
         if v1 is None:                # reopen: drop what the short measurement added to the history
             while self._hist and self._hist[-1][0] >= t1:
                 self._hist.pop()
@@ -311,7 +329,7 @@ class GapBridge:
             return
         T = t1 - g.t0
         self._settled_v = (samples[-1][0], v1)
-        corrected, unseen_var = self._settled_travel(g, T, v1)
+        corrected, unseen_var = self._settled_travel(g, T, v1, a1)
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
         self.offset_m += correction
         self._out_m += correction
@@ -325,12 +343,16 @@ class GapBridge:
         self.var_gaps += self._model_var(T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var
         self._gap = None
 
-    def _settled_travel(self, g: _Gap, T: float, v1: float) -> tuple[float, float]:
+    def _settled_travel(self, g: _Gap, T: float, v1: float, a1: float = 0.0) -> tuple[float, float]:
         """The gap's distance once the speed after it is known, and the variance of what the video
         cannot show."""
         if g.v0 is None:                      # a run that started blind: the speed after, constant
             return v1 * T, 0.0
         stop = self._stops(g, T)
+        if stop is not None and abs(v1) > self.p.speed_sigma_m_s and a1 * v1 > 0 and T - v1 / a1 >= stop:
+            # braked to a stop, and still speeding up when seen again: it started from rest v1 / a1
+            # before, so it stood in between
+            return self._travel(g, T) + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
         if stop is not None and abs(v1) > self.p.speed_sigma_m_s:
             # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
             # How long it stood is not in the video: anything from not at all to all the time left,
@@ -376,7 +398,25 @@ def _slope(ts, ds) -> float | None:
     return None if den <= 0 else sum((t - mt) * (d - md) for t, d in zip(ts, ds)) / den
 
 
-def _quadratic(ts, ds):
-    """Least-squares d = c + v t + a2 t^2 (only when a gap opens: a few dozen points)."""
-    c, v, a2 = np.polynomial.polynomial.polyfit(ts, ds, 2)
-    return float(c), float(v), float(a2)
+def _ramp(ts, ds) -> tuple[float, float, float]:
+    """(speed at t = 0, acceleration, its 1-sigma error) of a crawler that changes speed at a
+    constant rate from t = 0 and then, perhaps, holds the speed it reached (its drive ramps, then
+    cruises): least squares over where the ramp ends (once per gap: a few dozen points)."""
+    t, d = np.abs(np.asarray(ts, float)), np.asarray(ds, float)
+    best = None
+    inner = t[4:-1]                              # a ramp of five frames at least: fewer is noise's
+    ends = inner[np.linspace(0, len(inner) - 1, min(len(inner), 12)).astype(int)] if len(inner) else inner
+    for end in list(ends) + [None]:              # None: changing speed all along (a plain quadratic)
+        ramp = 0.5 * t * t if end is None else np.where(t < end, 0.5 * t * t, end * t - 0.5 * end * end)
+        A = np.column_stack([np.ones_like(t), t, ramp])
+        coef, *_ = np.linalg.lstsq(A, d, rcond=None)
+        rss = float(np.sum((A.dot(coef) - d) ** 2))
+        if best is None or rss < best[0]:
+            best = (rss, A, coef)
+    rss, A, coef = best
+    dof = len(t) - 3
+    try:
+        var_a = rss / dof * float(np.linalg.inv(A.T.dot(A))[2, 2]) if dof > 0 else np.inf
+    except np.linalg.LinAlgError:
+        var_a = np.inf
+    return float(coef[1]), float(coef[2]), math.sqrt(max(var_a, 0.0))

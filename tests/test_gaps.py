@@ -283,3 +283,35 @@ def test_a_long_gap_may_hide_a_stand_and_its_sigma_says_so():
     t, d, s_short, br = drive(lambda t: 0.4 * t, [(2.01, 2.49)], 4.0)
     q, T = BridgeParams().speed_diffusion, 0.5
     assert s_short[-1] < 1.5 * (q * T ** 3 / 12 + 0.5 * (0.005 * T) ** 2) ** 0.5 + 0.002
+
+
+def test_a_crawler_still_speeding_up_after_a_stop_in_a_gap_says_when_it_started():
+    # braking at 1 m/s^2 into a gap, a stand, then speeding up at 0.5 m/s^2 from 3.0 s: seen again
+    # at 3.2 s at 0.1 m/s and still speeding up. The stand's length is no guess then: it started
+    # 0.2 s before it was seen
+    def truth(t):
+        if t < 2.0:
+            return 0.3 * t
+        if t < 2.3:
+            return 0.6 + 0.3 * (t - 2) - 0.5 * (t - 2) ** 2
+        if t < 3.0:
+            return 0.645
+        if t < 3.6:
+            return 0.645 + 0.25 * (t - 3) ** 2
+        return 0.735 + 0.3 * (t - 3.6)
+
+    t, d, s, br = drive(truth, [(2.16, 3.19)], 4.5)
+    assert d[-1] == pytest.approx(truth(t[-1]), abs=3e-3)
+
+
+def test_noise_on_a_constant_speed_is_not_read_as_a_brake_or_a_push():
+    # 1 mm of white noise on every measured distance at 0.3 m/s: the ramp fit before the gap
+    # finds no rate 3 sigma clear of it, and the blind second is carried at the speed
+    rng = np.random.default_rng(7)
+    bridge = GapBridge()
+    for i in range(60):
+        bridge.update(est(i / FPS, 0.3 * i / FPS + rng.normal(0, 1e-3), keyframe=i % 10 == 0))
+    for i in range(60, 90):
+        b = bridge.update(est(i / FPS, 0.0, tracking=False))
+    assert b.distance_m == pytest.approx(0.3 * 89 / FPS, abs=0.01)
+    assert bridge._gap.a0 == 0.0
