@@ -35,7 +35,8 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-import numpy as np
+from .motionfit import ramp as _ramp
+from .motionfit import slope as _slope
 
 
 @dataclass(frozen=True)
@@ -95,6 +96,7 @@ class GapBridge:
         self._jitter_n = 0
         self._last2: list = []        # the last two measured (t, vision distance), for that
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
+        self._remeasured_at = None    # when the odometer last measured its steps again (a new tilt)
 
     @property
     def sigma_m(self) -> float:
@@ -137,10 +139,18 @@ class GapBridge:
         # a cruise: the speed and rate at t0 (a quadratic over the window blurs a late brake)
         # Only a brake is carried into the gap (it ends in a stop); a crawler speeding up goes on at
         # the speed seen (where its ramp ends no frame shows: the speed after the gap settles it)
-        v_back, a, sa = _ramp(ts, ds)
-        if abs(a) < max(self.p.min_accel_m_s2, 3 * sa) or a * v_back < 0:
+        v_back, a, sa = _ramp(ts, ds, self.p.min_history_s)
+        # distances measured again at a new tilt inside the window have the re-measure's shape,
+        # not the motion's
+        again = self._remeasured_at is not None and self._remeasured_at >= h[0][0]
+        if again or not self._a_ramp(a, sa) or a * v_back < 0:
             return _slope(ts, ds), 0.0, 0.0
         return -v_back, max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, a)), sa
+
+    def _a_ramp(self, a: float, sa: float) -> bool:
+        """A fitted rate that is a crawler's: clear of its fit's noise, and one its drive can
+        reach (a faster one is a jump in the distances, not a ramp)."""
+        return max(self.p.min_accel_m_s2, 3 * sa) <= abs(a) <= 1.5 * self.p.max_accel_m_s2
 
     def _travel(self, g: _Gap, T: float) -> float:
         """Distance over T at the speed and acceleration before the gap; a crawler that was braking
@@ -225,6 +235,7 @@ class GapBridge:
                 self._settle_or_reopen()
         if gain:                              # the motion model reads its speeds from the history
             self._hist = deque(_remeasured(list(self._hist), gain))
+            self._remeasured_at = est.t_s
         if self._kf_vision is None:
             self._kf_vision = est.distance_m
         self._track_jitter(est)
@@ -318,8 +329,8 @@ class GapBridge:
         if v1 is not None and len(samples) >= 5 and span >= 0.5 * self.p.history_s:
             # speeding up or slowing down since it was seen again: the speed at the gap's end, and
             # the rate (a crawler still speeding up started not long before)
-            v_end, a, sa = _ramp([t - t1 for t, _ in samples], [d for _, d in samples])
-            if abs(a) >= max(self.p.min_accel_m_s2, 3 * sa):
+            v_end, a, sa = _ramp([t - t1 for t, _ in samples], [d for _, d in samples], self.p.min_history_s)
+            if self._a_ramp(a, sa):
                 v1, a1 = v_end, max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, a))
         if v1 is None:                # reopen: drop what the short measurement added to the history
             while self._hist and self._hist[-1][0] >= t1:
@@ -387,36 +398,3 @@ def _remeasured(samples: list, gain_m: float):
         d0, span = samples[0][1], samples[-1][1] - samples[0][1]
         samples[:] = [(t, d + gain_m * (d - d0) / span) for t, d in samples]
     return samples
-
-
-def _slope(ts, ds) -> float | None:
-    n = len(ts)
-    if n < 2:
-        return None
-    mt, md = sum(ts) / n, sum(ds) / n
-    den = sum((t - mt) ** 2 for t in ts)
-    return None if den <= 0 else sum((t - mt) * (d - md) for t, d in zip(ts, ds)) / den
-
-
-def _ramp(ts, ds) -> tuple[float, float, float]:
-    """(speed at t = 0, acceleration, its 1-sigma error) of a crawler that changes speed at a
-    constant rate from t = 0 and then, perhaps, holds the speed it reached (its drive ramps, then
-    cruises): least squares over where the ramp ends (once per gap: a few dozen points)."""
-    t, d = np.abs(np.asarray(ts, float)), np.asarray(ds, float)
-    best = None
-    inner = t[4:-1]                              # a ramp of five frames at least: fewer is noise's
-    ends = inner[np.linspace(0, len(inner) - 1, min(len(inner), 12)).astype(int)] if len(inner) else inner
-    for end in list(ends) + [None]:              # None: changing speed all along (a plain quadratic)
-        ramp = 0.5 * t * t if end is None else np.where(t < end, 0.5 * t * t, end * t - 0.5 * end * end)
-        A = np.column_stack([np.ones_like(t), t, ramp])
-        coef, *_ = np.linalg.lstsq(A, d, rcond=None)
-        rss = float(np.sum((A.dot(coef) - d) ** 2))
-        if best is None or rss < best[0]:
-            best = (rss, A, coef)
-    rss, A, coef = best
-    dof = len(t) - 3
-    try:
-        var_a = rss / dof * float(np.linalg.inv(A.T.dot(A))[2, 2]) if dof > 0 else np.inf
-    except np.linalg.LinAlgError:
-        var_a = np.inf
-    return float(coef[1]), float(coef[2]), math.sqrt(max(var_a, 0.0))
