@@ -119,7 +119,8 @@ class GapBridge:
     # -- the motion model ------------------------------------------------------------------------------
 
     def _motion_before(self, t0: float):
-        """(speed, acceleration, its 1-sigma error) at t0 from the recent measured frames (None: never measured)."""
+        """(speed, acceleration, its 1-sigma error) at t0 from the recent measured frames (speed
+        None: never measured)."""
         def short(h):
             return len(h) < 2 or h[-1][0] - h[0][0] < self.p.min_history_s - _TIME_EPS
 
@@ -135,13 +136,11 @@ class GapBridge:
         ts, ds = [t - t0 for t, _ in h], [d for _, d in h]
         if len(h) < 5 or ts[-1] - ts[0] < 0.5 * self.p.history_s:
             return _slope(ts, ds), 0.0, 0.0
-        # back in time from t0: a ramp (braking, speeding up) that began inside the window, after
-        # a cruise: the speed and rate at t0 (a quadratic over the window blurs a late brake)
-        # Only a brake is carried into the gap (it ends in a stop); a crawler speeding up goes on at
-        # the speed seen (where its ramp ends no frame shows: the speed after the gap settles it)
+        # back in time from t0: a ramp that began inside the window, after a cruise (a quadratic
+        # over the window blurs a late brake). Only a brake is carried into the gap (it ends in a
+        # stop); a crawler speeding up goes on at the speed seen, which the speed after settles.
+        # Distances measured again at a new tilt in the window have the re-measure's shape
         v_back, a, sa = _ramp(ts, ds, self.p.min_history_s)
-        # distances measured again at a new tilt inside the window have the re-measure's shape,
-        # not the motion's
         again = self._remeasured_at is not None and self._remeasured_at >= h[0][0]
         if again or not self._a_ramp(a, sa) or a * v_back < 0:
             return _slope(ts, ds), 0.0, 0.0
