@@ -52,8 +52,7 @@ class DenseShift:
         self._prev = None             # the last flat-fielded frame
         self._prev_small = None       # ...and the last frame as it came, at that level
         self._frames = 0
-        self._pending: list = []      # shifts found but not yet confirmed by the next ones...
-        self._pending_t = []          # ...and the time of the frame each starts from
+        self._pending: list = []      # (shift, response, start time) found, not yet confirmed by the next
         self._last_dv = None          # the last shift handed out, once confirmed
         self._prev_t = None           # the last frame's time
 
@@ -64,24 +63,22 @@ class DenseShift:
         found, since = self._frame_shift(roi), self._prev_t
         self._prev_t = t_s
         if found is None:
-            self._pending, self._pending_t, self._last_dv = [], [], None
+            self._pending, self._last_dv = [], None
             return None
         if self._last_dv is not None and self._agree([self._last_dv, found[0][1]]):
             self._last_dv = found[0][1]               # confirmed before, and it goes on
             return (*found, since)
         self._last_dv = None
-        self._pending.append(found)
-        self._pending_t.append(since)
-        recent = [dv for (_, dv), _ in self._pending[-self.p.confirm:]]
+        self._pending.append((*found, since))
+        recent = [dv for (_, dv), _, _ in self._pending[-self.p.confirm:]]
         if len(recent) < self.p.confirm or not self._agree(recent):
-            keep = self.p.confirm - 1
-            self._pending, self._pending_t = self._pending[-keep:], self._pending_t[-keep:]
+            self._pending = self._pending[-(self.p.confirm - 1):]
             return None
-        du = sum(s[0] for s, _ in self._pending)
-        dv = sum(s[1] for s, _ in self._pending)
-        response = min(r for _, r in self._pending)
-        since = self._pending_t[0]
-        self._pending, self._pending_t, self._last_dv = [], [], recent[-1]
+        du = sum(s[0] for s, _, _ in self._pending)
+        dv = sum(s[1] for s, _, _ in self._pending)
+        response = min(r for _, r, _ in self._pending)
+        since = self._pending[0][2]
+        self._pending, self._last_dv = [], recent[-1]
         return (du, dv), response, since
 
     def _agree(self, dvs) -> bool:

@@ -141,15 +141,18 @@ class GapBridge:
         # stop); a crawler speeding up goes on at the speed seen, which the speed after settles.
         # Distances measured again at a new tilt in the window have the re-measure's shape
         v_back, a, sa = _ramp(ts, ds, self.p.min_history_s)
+        rate = self._ramp_rate(a, sa)
         again = self._remeasured_at is not None and self._remeasured_at >= h[0][0]
-        if again or not self._a_ramp(a, sa) or a * v_back < 0:
+        if again or rate is None or a * v_back < 0:
             return _slope(ts, ds), 0.0, 0.0
-        return -v_back, max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, a)), sa
+        return -v_back, rate, sa
 
-    def _a_ramp(self, a: float, sa: float) -> bool:
-        """A fitted rate that is a crawler's: clear of its fit's noise, and one its drive can
-        reach (a faster one is a jump in the distances, not a ramp)."""
-        return max(self.p.min_accel_m_s2, 3 * sa) <= abs(a) <= 1.5 * self.p.max_accel_m_s2
+    def _ramp_rate(self, a: float, sa: float) -> float | None:
+        """A fitted rate, clipped to max_accel_m_s2; None if lost in its fit's noise or beyond a
+        drive's reach (a jump in the distances, not a ramp)."""
+        if not max(self.p.min_accel_m_s2, 3 * sa) <= abs(a) <= 1.5 * self.p.max_accel_m_s2:
+            return None
+        return max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, a))
 
     def _travel(self, g: _Gap, T: float) -> float:
         """Distance over T at the speed and acceleration before the gap; a crawler that was braking
@@ -184,10 +187,8 @@ class GapBridge:
         return (sv * T) ** 2 + q * T ** 3 / 3.0 + self._stand_var(T, v0) + (0.5 * sa * T * T) ** 2
 
     def _stand_var(self, T: float, v0: float | None) -> float:
-        """While blind longer than it takes to brake, the crawler may be standing (an operator
-        stops to look): anything from braking at its best to driving on. Even odds of either, a
-        stand uniform over that range: mean square range^2 / 6 (the settled gap's twin is in
-        _settled_travel)."""
+        """Blind longer than it takes to brake, the crawler may stand (an operator stops to look):
+        even odds of that, anywhere from braking at its best to driving on (range^2 / 6)."""
         a = self.p.max_accel_m_s2
         if v0 is None or T <= abs(v0) / a:
             return 0.0
@@ -329,8 +330,8 @@ class GapBridge:
             # speeding up or slowing down since it was seen again: the speed at the gap's end, and
             # the rate (a crawler still speeding up started not long before)
             v_end, a, sa = _ramp([t - t1 for t, _ in samples], [d for _, d in samples], self.p.min_history_s)
-            if self._a_ramp(a, sa):
-                v1, a1 = v_end, max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, a))
+            if (rate := self._ramp_rate(a, sa)) is not None:
+                v1, a1 = v_end, rate
         if v1 is None:                # reopen: drop what the short measurement added to the history
             while self._hist and self._hist[-1][0] >= t1:
                 self._hist.pop()
