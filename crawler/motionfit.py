@@ -28,7 +28,7 @@ def ramp(ts, ds, min_s: float) -> tuple[float, float, float]:
     few dozen points)."""
     t, d = np.abs(np.asarray(ts, float)), np.asarray(ds, float)
     best = None
-    inner = t[4:-1]                              # five frames and min_s at least: a shorter ramp is noise's
+    inner = np.sort(t)[4:-1]                     # five frames and min_s at least: a shorter ramp is noise's
     inner = inner[inner >= min_s]
     ends = inner[np.linspace(0, len(inner) - 1, min(len(inner), 12)).astype(int)] if len(inner) else inner
     for end in list(ends) + [None]:              # None: changing speed all along (a plain quadratic)
