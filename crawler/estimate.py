@@ -6,6 +6,12 @@ import math
 from dataclasses import dataclass
 
 
+def finite_round(v: float | None, digits: int) -> float | None:
+    """A published number: rounded, or None where it is missing or not finite (a filter that
+    diverged says nothing rather than NaN)."""
+    return None if v is None or not math.isfinite(v) else round(float(v), digits)
+
+
 @dataclass
 class Estimate:
     """One frame's result. Distances are metres since the run start; quality in [0, 1]."""
@@ -42,7 +48,7 @@ class Estimate:
         for k in ("distance_m", "lateral_m"):
             d[k] = round(d[k], 6)
         for k in ("speed_m_s", "roll_deg", "spread_mm", "sigma_m", "wheel_distance_m", "wheel_scale"):
-            d[k] = None if d[k] is None or not math.isfinite(d[k]) else round(d[k], 6)
+            d[k] = finite_round(d[k], 6)
         d["gap_s"] = round(d["gap_s"], 4)
         d["t_s"] = round(d["t_s"], 6)
         d["quality"] = round(d["quality"], 3)

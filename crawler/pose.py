@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop, far_apart
+from .estimate import finite_round
 
 
 @dataclass(frozen=True)
@@ -183,13 +184,13 @@ class PoseEstimator:
     def status(self) -> dict:
         """What the daemon's status says of the pose (docs/topics.md)."""
         auto = self.tilt.auto
-        return {**self.frame(), "tilt_sigma_deg": _finite(math.degrees(self.tilt.sigma_rad), 3) if auto else None,
+        return {**self.frame(), "tilt_sigma_deg": finite_round(math.degrees(self.tilt.sigma_rad), 3) if auto else None,
                 "tilt_auto": auto, "tilt_steps": self.tilt.steps}
 
     def frame(self) -> dict:
         """What each published estimate says of the pose: the camera's tilt, pitch and height now."""
-        return {"tilt_deg": _finite(self.tilt_deg, 3), "pitch_deg": _finite(math.degrees(self.s[PITCH]), 3),
-                "camera_height_m": _finite(self.height_m, 5)}
+        return {"tilt_deg": finite_round(self.tilt_deg, 3), "pitch_deg": finite_round(math.degrees(self.s[PITCH]), 3),
+                "camera_height_m": finite_round(self.height_m, 5)}
 
     @property
     def tilt_deg(self) -> float:
@@ -302,11 +303,6 @@ class PoseEstimator:
         step = (mk[1] - mc[1]) * tau + mk[1] * pk - mc[1] * pc - mc[3] * dh
         lat = (mc[0] - mk[0]) * tau + mc[0] * pc - mk[0] * pk + mc[2] * dh
         return float(step), float(lat), float(mk[1] - mc[1])
-
-
-def _finite(v: float, digits: int) -> float | None:
-    """Published numbers are finite: a filter that diverged says nothing rather than NaN."""
-    return round(float(v), digits) if math.isfinite(v) else None
 
 
 def _c(a: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from ..estimate import finite_round
 from .learn import ScaleLearner, SlipDetector
 from .timeline import WheelTimeline
 
@@ -80,12 +81,10 @@ class FusedEstimate(NamedTuple):
 
     def as_dict(self) -> dict:
         """The fields a distance message carries (rounded; never a non-finite number)."""
-        def num(x, nd):
-            return round(x, nd) if x is not None and math.isfinite(x) else None
-        return {"distance_m": num(self.distance_m, 6), "sigma_m": num(self.sigma_m, 6),
-                "speed_m_s": num(self.speed_m_s, 6), "source": self.source, "slip": self.slip,
-                "wheel_distance_m": num(self.wheel_distance_m, 6),
-                "wheel_scale": num(self.wheel_scale, 6)}
+        return {"distance_m": finite_round(self.distance_m, 6), "sigma_m": finite_round(self.sigma_m, 6),
+                "speed_m_s": finite_round(self.speed_m_s, 6), "source": self.source, "slip": self.slip,
+                "wheel_distance_m": finite_round(self.wheel_distance_m, 6),
+                "wheel_scale": finite_round(self.wheel_scale, 6)}
 
 
 def _field(data: dict, key: str, lo: float = -math.inf, hi: float = math.inf) -> float:
