@@ -247,7 +247,7 @@ class Daemon:
 
     def _step(self, frame, measured):
         self._observe_restart(measured)
-        est = self.chain.update(measured, self.wheel.read())
+        est = self.chain.update(measured, self.wheel.read(), frame.qp)
         est.frame = frame.index               # the source's numbering (dropped and lost frames leave gaps)
         self._count_drops(frame.index)
         self._published_m = est.distance_m
@@ -315,6 +315,10 @@ class Daemon:
         out = self.stats.summary(self.distance_m, self.odometer.lateral)
         if self.odometer.pose.active:
             out["pose"] = self.odometer.pose.status()
+        codec = self.chain.codec
+        if codec.qp is not None:       # a compressed recording: what its quantiser added to sigma
+            out["codec"] = {"mean_qp": round(codec.qp, 2), "keyframes": codec.keyframes,
+                            "sigma_m": round(codec.sigma_m, 6)}
         for output in self.outputs:
             output.summarize(out)
         return out

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+from .codec import CodecBias
 from .gaps import GapBridge
 from .wheel.fusion import VisionFix
 
@@ -20,14 +21,17 @@ from .wheel.fusion import VisionFix
 class DistanceChain:
     """Per frame: the odometer's estimate (and the wheel's reading) in, the published estimate out."""
 
-    def __init__(self, bridge: GapBridge | None = None, fusion=None):
+    def __init__(self, bridge: GapBridge | None = None, fusion=None, codec: CodecBias | None = None):
         self.bridge = bridge or GapBridge()
         self.fusion = fusion            # crawler.wheel.WheelFusion, or None without a wheel
+        self.codec = codec or CodecBias(0.0)   # a compressed recording's systematic error (codec.py)
         self.last_event = None          # the latest slip event, for the status
 
-    def update(self, est, wheel_reading=None):
+    def update(self, est, wheel_reading=None, qp: float | None = None):
+        """`qp`: the frame's mean quantiser when it comes from a compressed recording."""
         b = self.bridge.update(est)
-        out = replace(est, distance_m=b.distance_m, sigma_m=b.sigma_m, bridged=b.bridged,
+        codec_m = self.codec.update(qp, est.keyframe and est.tracking and est.inliers > 0)
+        out = replace(est, distance_m=b.distance_m, sigma_m=math.hypot(b.sigma_m, codec_m), bridged=b.bridged,
                       source="model" if b.bridged else "vision", gap_s=b.gap_s)
         if self.fusion is None:
             return out
@@ -39,7 +43,8 @@ class DistanceChain:
         speed = est.speed_m_s
         if speed is None and fused.source == "wheel" and math.isfinite(fused.speed_m_s):
             speed = fused.speed_m_s            # the camera is blind: the wheel's speed is the one there is
-        return replace(out, distance_m=fused.distance_m, sigma_m=math.hypot(self.bridge.sigma_meas_m, fused.sigma_m),
+        return replace(out, distance_m=fused.distance_m,
+                       sigma_m=math.hypot(self.bridge.sigma_meas_m, fused.sigma_m, codec_m),
                        source=fused.source, slip=fused.slip, wheel_distance_m=fused.wheel_distance_m,
                        wheel_scale=fused.wheel_scale, speed_m_s=speed)
 
@@ -51,7 +56,7 @@ class DistanceChain:
             self.fusion.set_distance(distance_m, vision_m=vision_m)
 
     def state(self) -> dict:
-        out = {"sigma_m": self.bridge.sigma_m}
+        out = {"sigma_m": math.hypot(self.bridge.sigma_m, self.codec.sigma_m)}   # a restart carries both
         if self.fusion is not None:
             out["wheel"] = self.fusion.to_dict()
         return out

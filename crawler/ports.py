@@ -23,6 +23,7 @@ class Frame:
     index: int
     t_s: float
     gray: np.ndarray
+    qp: float | None = None   # a recording's mean quantiser (H.264 QP); None for raw frames (crawler/codec.py)
 
 
 class FrameSource(Protocol):

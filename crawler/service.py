@@ -19,6 +19,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from .checkpoint import Checkpoint, CheckpointOutput
+from .codec import CodecBias
 from .daemon import Daemon
 from .distance import DistanceChain
 from .gaps import GapBridge
@@ -156,9 +157,10 @@ class Service:
         resume = resume or {}
         bridge = GapBridge(bridge_params(self.settings, self.odometer), distance_m=resume.get("distance_m", 0.0),
                            sigma_m=resume.get("sigma_m") or 0.0)
+        codec = CodecBias(self.odometer.m_per_px)
         w = self.settings.wheel
         if not w.enabled:
-            return DistanceChain(bridge)
+            return DistanceChain(bridge, codec=codec)
         from .wheel import WheelFusion
 
         fusion = WheelFusion(w.fusion_params(), distance_m=resume.get("distance_m", 0.0))
@@ -167,7 +169,7 @@ class Service:
                 fusion = WheelFusion.from_dict(resume["wheel"], w.fusion_params())
             except ValueError as exc:
                 _log.error("the checkpoint's wheel state is unreadable (%s); the wheel starts afresh", exc)
-        return DistanceChain(bridge, fusion)
+        return DistanceChain(bridge, fusion, codec)
 
     def _wheel(self):
         from .wheel import open_wheel

@@ -143,7 +143,7 @@ class VideoReplay:
             if self.pacer is not None and not self.pacer.due(t - first):
                 self.frames_dropped += 1
                 continue
-            yield Frame(k, t - first, _y_plane(frame))
+            yield Frame(k, t - first, _y_plane(frame), _mean_qp(frame))
             if self.pacer is not None:
                 self.pacer.asked()
         self._report_losses()
@@ -161,6 +161,7 @@ class VideoReplay:
 
         stream = self._container.streams.video[0]
         stream.thread_type = "AUTO"
+        stream.codec_context.options = {"export_side_data": "venc_params"}    # each frame's QP (_mean_qp)
         raw = self._container.format.name in RAW_FORMATS
         sent = out = failed = damaged = 0
         reorders = False            # B-frames: frames leave the decoder out of packet order
@@ -247,6 +248,19 @@ class VideoReplay:
             w, h = self.expect_size
             raise VideoError(f"{self.path.name} is {frame.width}x{frame.height} but [camera] width/height "
                              f"say {w}x{h}; set them to the video's size (and its FOV or calibration)")
+
+
+def _mean_qp(frame) -> float | None:
+    """The frame's mean quantiser over its blocks (FFmpeg's exported encoding parameters), or None
+    where the decoder or PyAV does not give it: sigma's codec term (crawler/codec.py) is then left out."""
+    try:
+        for sd in frame.side_data:
+            if type(sd).__name__ == "VideoEncParams":
+                qp_map = getattr(sd, "qp_map", None)
+                return float(np.mean(qp_map())) if qp_map is not None and sd.nb_blocks else float(sd.qp)
+    except (AttributeError, TypeError, ValueError):   # an older PyAV (apt: 10.0) may not know the type
+        return None
+    return None
 
 
 def _y_plane(frame) -> np.ndarray:
