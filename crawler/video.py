@@ -8,6 +8,7 @@ wrong speeds.
 
 from __future__ import annotations
 
+import struct
 import time
 from pathlib import Path
 from typing import Iterator
@@ -250,16 +251,26 @@ class VideoReplay:
                              f"say {w}x{h}; set them to the video's size (and its FOV or calibration)")
 
 
+ENC_PARAMS = 19                   # AV_FRAME_DATA_VIDEO_ENC_PARAMS (FFmpeg >= 4.4)
+_ENC_HEAD = struct.Struct("@INNii")  # AVVideoEncParams: nb_blocks, blocks_offset, block_size, type, qp
+
+
 def _mean_qp(frame) -> float | None:
-    """The frame's mean quantiser over its blocks (FFmpeg's exported encoding parameters), or None
-    where the decoder or PyAV does not give it: sigma's codec term (crawler/codec.py) is then left out."""
-    try:
-        for sd in frame.side_data:
-            if type(sd).__name__ == "VideoEncParams":
-                qp_map = getattr(sd, "qp_map", None)
-                return float(np.mean(qp_map())) if qp_map is not None and sd.nb_blocks else float(sd.qp)
-    except (AttributeError, TypeError, ValueError):   # an older PyAV (apt: 10.0) may not know the type
-        return None
+    """The frame's mean quantiser over its blocks, from the encoding parameters FFmpeg exports
+    (AVVideoEncParams: the frame's QP, then each block's delta at offset 16), read from the raw side
+    data so that every PyAV from 10 on gives it; None when the decoder gives none. Sigma's codec
+    term (crawler/codec.py) is then left out."""
+    for sd in frame.side_data:
+        if getattr(sd.type, "value", sd.type) != ENC_PARAMS:     # an enum member, or a bare int (PyAV 10)
+            continue
+        buf = memoryview(sd).cast("B")
+        if buf.nbytes < _ENC_HEAD.size:
+            return None
+        n, offset, size, _, qp = _ENC_HEAD.unpack_from(buf)
+        if n == 0 or size < 20 or offset + n * size > buf.nbytes:
+            return float(qp)
+        delta = np.frombuffer(buf, np.int32, count=n * size // 4, offset=offset)[4::size // 4]
+        return qp + float(delta.mean())
     return None
 
 
