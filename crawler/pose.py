@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop, far_apart
@@ -99,12 +100,12 @@ class PoseEstimator:
         self._offset = np.array(roi[:2], np.float64)
         self.tilt = (AutoTilt(camera, projection, roi, self.p.tilt) if self.p.auto_tilt
                      else FixedTilt(camera, projection, roi))
-        self._limit = np.array([math.radians(self.p.pitch_sigma_deg), self.p.bounce_sigma_mm / 1000.0])
-        self._sig = self._limit.copy()             # the levels the tracks show, at most the configured
-        self._level = np.zeros((2, 2))             # running sums: excess square, expected per unit variance
-        self._tau = np.array([self.p.pitch_tau_s, self.p.bounce_tau_s])
-        self.s = np.zeros(4)
-        self.P = np.tile(np.diag(self._sig ** 2), (2, 2))
+        self._limit = (math.radians(self.p.pitch_sigma_deg), self.p.bounce_sigma_mm / 1000.0)
+        self._sig = list(self._limit)              # the levels the tracks show, at most the configured
+        self._level = [[0.0, 0.0], [0.0, 0.0]]     # running sums: excess square, expected per unit variance
+        self._tau = (self.p.pitch_tau_s, self.p.bounce_tau_s)
+        self._decay = (None,)                      # (dt, its decay of s and P, of the variances)
+        self._forget()
         self._t = None
         self._serial = 0
         self._end = None                           # the last measured frame's d(step)/d(pitch, height)
@@ -121,7 +122,7 @@ class PoseEstimator:
         frame's (a clone of the state)."""
         xy = self.camera.normalise(px)
         self._serial += 1
-        kf.pose = (self.tilt.field.at(xy), xy, self._serial)
+        kf.pose = (self.tilt.field.at_roi(kf.pts), xy, self._serial)
         continuous = self._t is None or t_s == self._t    # the run's first, or on the frame just measured
         self._closing = self._end if continuous else None
         self._predict(t_s)
@@ -139,19 +140,24 @@ class PoseEstimator:
         if kf.pose is None or len(idx) < 3:
             return NO_FIX
         t_idx, t_pts, t_moved, both = c.tracks
-        t_xy = self.camera.normalise(t_pts + self._offset)
-        xy, moved = t_xy.compress(both, 0), t_moved.compress(both, 1)
+        moved = t_moved.compress(both, 1)
         self._predict(t_s)
-        jk, jc, xy_k = kf.pose[0].take(idx, 0), self.tilt.field.at(xy), kf.pose[1].take(idx, 0)
-        moved_px = abs(float(moved[1].mean())) / (self.projection.mount.height_m / self.camera.fy)
-        base = self.tilt.update(kf.pose[2], kf.pose[1].take(t_idx, 0), t_xy, moved_px, t_s,
-                                self._shutter(kf, t_idx, t_pts, t_s))
-        if self._limit.any():                      # pitch or height estimated at all
-            base += self._filter(jk, jc, moved, c.sigma, t_s - kf.t_s)
-        step, lat, sens = self._correction(jk, jc, self.tilt.tau)
         if self.tilt.auto:
-            self.tilt.record(Hop(t_s, self.projection, xy_k, xy, moved[1].copy(), tuple(self.s),
-                                 float(moved[1].mean()) + step, sens))
+            t_xy = self.camera.normalise(t_pts + self._offset)
+            xy = t_xy.compress(both, 0)
+            moved_px = abs(float(moved[1].mean())) / (self.projection.mount.height_m / self.camera.fy)
+            base = self.tilt.update(kf.pose[2], kf.pose[1].take(t_idx, 0), t_xy, moved_px, t_s,
+                                    self._shutter(kf, t_idx, t_pts, t_s))
+        else:                                      # a configured tilt reads the inliers only
+            xy, base = None, 0.0
+        jc = self.tilt.field.at_roi(c.pts)
+        hh, hz, means = self._information(kf.pose[0].take(idx, 0), jc, moved, self.tilt.tau)
+        if any(self._limit):                       # pitch or height estimated at all
+            base += self._filter(hh, hz, c.sigma, t_s - kf.t_s)
+        step, lat, sens = self._correction(means, self.tilt.tau)
+        if self.tilt.auto:
+            self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
+                                 tuple(self.s), float(moved[1].mean()) + step, sens))
         old = self.projection
         remount, extra = self.tilt.remount()
         if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
@@ -202,82 +208,100 @@ class PoseEstimator:
 
     # -- the filter -------------------------------------------------------------------------------
 
-    def _filter(self, jk, jc, moved, sigma, since_kf) -> float:
-        """This frame's tracks into the pitch and height: the metres the keyframe's better known
-        pose gives the step before it."""
-        H, z = self._model(jk, jc, moved, self.tilt.tau)
-        self._learn_levels(H, z, sigma, since_kf)
+    def _filter(self, hh, hz, sigma, since_kf) -> float:
+        """This frame's tracks (the model's information H'H, H'z) into the pitch and height: the
+        metres the keyframe's better known pose gives the step before it."""
+        self._learn_levels(hh, hz, sigma, since_kf)
         var = self._noise_var(sigma)
-        before = self.s[2:].copy()
-        self._update(H.T.dot(H) / var, H.T.dot(z) / var)
-        return self._refined(self.s[2:] - before)
+        before = self.s[2:].tolist()
+        self._update(hh / var, hz / var)
+        after = self.s[2:].tolist()
+        return self._refined((after[0] - before[0], after[1] - before[1]))
 
     def _forget(self):
         """Back to the prior: no pitch or height known."""
-        self.s[:] = 0.0
-        self.P = np.tile(np.diag(self._sig ** 2), (2, 2))
+        a, b = self._sig[0] ** 2, self._sig[1] ** 2
+        self._keep = [a > 0, b > 0] * 2            # a zero prior variance stays zero: not estimated
+        self.s = np.zeros(4)
+        self.P = np.array([[a, 0.0, a, 0.0], [0.0, b, 0.0, b], [a, 0.0, a, 0.0], [0.0, b, 0.0, b]])
 
     def _predict(self, t_s):
         dt = 0.0 if self._t is None else max(t_s - self._t, 0.0)
         self._t = t_s
-        phi = np.exp(-dt / self._tau)
-        self.s[:2] *= phi
-        self.P[:2, :] *= phi[:, None]
-        self.P[:, :2] *= phi[None, :]
-        self.P[:2, :2] += np.diag(self._sig ** 2 * (1 - phi ** 2))
+        if dt == 0.0:
+            return
+        if dt != self._decay[0]:                   # a camera's frame interval repeats: its decay too
+            p0, p1 = math.exp(-dt / self._tau[0]), math.exp(-dt / self._tau[1])
+            phi = np.array([p0, p1, 1.0, 1.0])
+            self._decay = (dt, phi, np.outer(phi, phi), 1 - p0 * p0, 1 - p1 * p1)
+        _, phi, phi2, q0, q1 = self._decay
+        self.s *= phi
+        self.P *= phi2
+        flat, sig = self.P.reshape(-1), self._sig
+        flat[0] += sig[0] * sig[0] * q0            # P[PITCH, PITCH]
+        flat[5] += sig[1] * sig[1] * q1            # P[HEIGHT, HEIGHT]
 
-    def _learn_levels(self, H, z, sigma, since_kf):
+    def _learn_levels(self, hh, hz, sigma, since_kf):
         """How much the car really pitches and bounces, from this frame's own (prior-free) reading of
         its pose against the keyframe's: its square, less what its noise alone would give, against
         what an AR(1) level of unit variance would give over this interval. A smooth run then gets no
         pitch or height it does not show (each would add its noise to every step), a shaky one up to
         the configured level."""
-        g = H[:, :2]
-        a = g.T.dot(g)
-        try:
-            cov = np.linalg.inv(a) * max(sigma, 1e-9) ** 2
-            d = np.linalg.solve(a, g.T.dot(z))
-        except np.linalg.LinAlgError:
+        (a00, a01), (_, a11) = hh[:2, :2].tolist()
+        g0, g1 = hz[:2].tolist()
+        det = a00 * a11 - a01 * a01
+        if not det or not math.isfinite(det):
             return
+        var = max(sigma, 1e-9) ** 2 / det           # the prior-free reading and its covariance
+        d = ((a11 * g0 - a01 * g1) / det, (a00 * g1 - a01 * g0) / det)
+        cov = (a11 * var, a00 * var)
         keep = math.exp(-1.0 / (30.0 * self.p.level_memory_s))      # per frame, at ~30 fps
-        unit = 2.0 * (1.0 - np.exp(-max(since_kf, 0.0) / self._tau))
-        self._level *= keep
-        self._level[0] += d * d - np.diag(cov)
-        self._level[1] += unit
-        with np.errstate(divide="ignore", invalid="ignore"):
-            level = np.where(self._level[1] > 0, self._level[0] / self._level[1], 0.0)
-        self._sig = np.minimum(self._limit, np.sqrt(np.clip(level, 0.0, None)))
+        since = max(since_kf, 0.0)
+        (e, u), sig = self._level, []
+        for i, tau in enumerate((self.p.pitch_tau_s, self.p.bounce_tau_s)):
+            e[i] = e[i] * keep + d[i] * d[i] - cov[i]
+            u[i] = u[i] * keep + 2.0 * (1.0 - math.exp(-since / tau))
+            level = e[i] / u[i] if u[i] > 0 else 0.0
+            sig.append(min(self._limit[i], math.sqrt(max(level, 0.0))))
+        self._sig = sig
 
-    def _model(self, jk, jc, moved, tau):
-        """The linear model z = H s of the centred displacements (stacked axial, lateral): where each
-        feature was and is, a tilt or a pitch moves its wall position differently, so the keyframe's
-        pitch has a pattern of its own; its height counts only as the shift it explains (the level
-        of the height is not observable)."""
-        d = jc - jk
-        hk = self.s[K_HEIGHT]
-        z = np.concatenate([_c(moved[1] - d[:, 1] * tau - d[:, 3] * hk),
-                            _c(-moved[0] - d[:, 0] * tau - d[:, 2] * hk)])
-        H = np.empty((len(z), 4))
-        H[:, PITCH] = np.concatenate([_c(jc[:, 1]), _c(jc[:, 0])])
-        H[:, HEIGHT] = np.concatenate([_c(jc[:, 3]), _c(jc[:, 2])])
-        H[:, K_PITCH] = -np.concatenate([_c(jk[:, 1]), _c(jk[:, 0])])
-        H[:, K_HEIGHT] = -H[:, HEIGHT]
-        return H, z
+    def _information(self, jk, jc, moved, tau):
+        """H'H and H'z of the linear model z = H s of the centred displacements, and the means of
+        H's and z's columns. Stacked axial, lateral: where each feature was and is, a tilt or a
+        pitch moves its wall position differently, so the keyframe's pitch has a pattern of its
+        own; its height counts only as the shift it explains (the level of the height is not
+        observable). Each row of H and z is a fixed combination of a feature's (jc, jk, moved)
+        (_MODEL), so all of it is one product and one Gram matrix: on the Pi the cost is the
+        number of numpy calls, not the arithmetic."""
+        a = _MODEL[0] + float(self.s[K_HEIGHT]) * _MODEL[2]
+        if tau:
+            a += tau * _MODEL[1]
+        y = np.concatenate([jc, jk, moved.T], axis=1).dot(a)    # (n, 10): axial H, z | lateral H, z
+        mean = np.add.reduce(y, 0) * (1.0 / len(y))
+        y -= mean
+        y = y.reshape(-1, 5)                       # each feature's axial row, then its lateral row
+        g = y.T.dot(y)
+        return g[:4, :4], g[:4, 4], mean.tolist()
 
     def _update(self, info, eta):
         """The Kalman update in information form, P' = (I + P info)^-1 P; a pose the prior holds at
-        zero variance (not estimated) stays at zero."""
-        keep = np.diag(self.P) > 0
-        if not keep.any():
+        zero variance (not estimated) stays at zero. (cv2.solve: a quarter of numpy.linalg's cost
+        on the Pi for a 4x4.)"""
+        keep = self._keep
+        if not any(keep):
             return
-        k = np.ix_(keep, keep)
-        p, s = self.P[k], self.s[keep]
-        try:
-            p_new = np.linalg.solve(np.eye(len(p)) + p.dot(info[k]), p)
-        except np.linalg.LinAlgError:
+        full = all(keep)                           # both estimated: no sub-matrices to cut
+        k = None if full else np.ix_(keep, keep)
+        p, s, info, eta = (self.P, self.s, info, eta) if full else (self.P[k], self.s[keep], info[k], eta[keep])
+        ok, p_new = cv2.solve(_EYE[len(p)] + p.dot(info), p, flags=cv2.DECOMP_LU)
+        if not ok:
             return
-        self.s[keep] = s + p_new.dot(eta[keep] - info[k].dot(s))
-        self.P[k] = 0.5 * (p_new + p_new.T)
+        s_new = s + p_new.dot(eta - info.dot(s))
+        cv2.completeSymm(p_new)                    # symmetric but for rounding
+        if full:
+            self.s, self.P = s_new, p_new
+        else:
+            self.s[keep], self.P[k] = s_new, p_new
 
     def _noise_var(self, sigma):
         """The per-feature noise: the consensus's spread, persistent errors counted in (noise_scale)."""
@@ -292,18 +316,36 @@ class PoseEstimator:
             return 0.0
         return -float(self._closing[0] * change[0] + self._closing[1] * change[1])
 
-    def _correction(self, jk, jc, tau):
+    def _correction(self, means, tau):
         """Metres to add to the step and the lateral step, and d step/d tilt. Tilt and pitch count
         where each feature was and is; the height only as this frame's less the keyframe's (the
         scale it causes): its level is not observable, and a level that wandered would scale every
         step (docs/odometry.md, "Pose")."""
-        mk, mc = jk.mean(axis=0), jc.mean(axis=0)
+        m = means                                  # of H's columns: axial jc1, jc3, -jk1; lateral jc0, jc2, -jk0
+        mc, mk = (m[5], m[0], m[6], m[1]), (-m[7], -m[2])
         self._end = (mc[1], mc[3])
-        pc, pk, dh = self.s[PITCH], self.s[K_PITCH], self.s[HEIGHT] - self.s[K_HEIGHT]
+        pc, hc, pk, hk = self.s.tolist()
+        dh = hc - hk
         step = (mk[1] - mc[1]) * tau + mk[1] * pk - mc[1] * pc - mc[3] * dh
         lat = (mc[0] - mk[0]) * tau + mc[0] * pc - mk[0] * pk + mc[2] * dh
-        return float(step), float(lat), float(mk[1] - mc[1])
+        return step, lat, mk[1] - mc[1]
 
 
-def _c(a: np.ndarray) -> np.ndarray:
-    return a - a.mean()
+def _model_maps() -> np.ndarray:
+    """(3, 10, 10): how each row of H and z (axial: columns 0-4, lateral: 5-9; H's four, then z)
+    combines a feature's (jc 0-3, jk 4-7, moved lateral 8, axial 9), as base + tau * [1] +
+    keyframe height * [2]. COLUMNS: 0 ds/dtilt, 1 dy/dtilt, 2 ds/dheight, 3 dy/dheight."""
+    m = np.zeros((3, 10, 10))
+    for off, (tilt, height, moved, sign) in ((0, (1, 3, 9, 1.0)), (5, (0, 2, 8, -1.0))):
+        m[0, tilt, off + PITCH] = 1.0              # this frame's pitch: its field where it is
+        m[0, height, off + HEIGHT] = 1.0
+        m[0, 4 + tilt, off + K_PITCH] = -1.0       # the keyframe's: where it was
+        m[0, height, off + K_HEIGHT] = -1.0        # a height counts only as a change
+        m[0, moved, off + 4] = sign                # z: the displacement less tilt and keyframe height
+        m[1, tilt, off + 4], m[1, 4 + tilt, off + 4] = -1.0, 1.0
+        m[2, height, off + 4], m[2, 4 + height, off + 4] = -1.0, 1.0
+    return m
+
+
+_MODEL = _model_maps()
+_EYE = [np.eye(n) for n in range(5)]

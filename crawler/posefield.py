@@ -5,12 +5,15 @@ of its wall position (s, y) with respect to the camera's tilt and its height bel
 exact projection differentiated per frame is too dear on the Pi, and these fields are smooth over an
 ROI: a cubic polynomial of the normalised image point, fitted once per mount to central differences
 of the exact projection, is within 1 % of them up to 40 degrees of tilt (docs/odometry.md, "Pose").
+Per frame the pose filter reads them from a table of the exact fields on a pixel grid instead
+(`at_roi`, bilinear, one cv2.remap): no normalisation and no polynomial, a fifth of the cost on the Pi.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 
 from .geometry import Camera, Projection
@@ -18,6 +21,8 @@ from .geometry import Camera, Projection
 TILT_PROBE_RAD = 1e-4     # central differences: far above rounding, far below the fields' curvature
 HEIGHT_PROBE_M = 1e-4
 GRID = 12                 # fit points per side of the ROI
+TABLE_STEP_PX = 8         # the per-frame table's grid: bilinear, within 0.1 % of the fields (tests/test_pose.py)
+_TABLE_SCALE = np.float32(1.0 / TABLE_STEP_PX)
 COLUMNS = ("ds_dtilt", "dy_dtilt", "ds_dheight", "dy_dheight")   # the four fields, in this order
 
 
@@ -62,6 +67,19 @@ class JacobianField:
         ok = np.all(np.isfinite(d), axis=1)
         self.projection = projection
         self.coef = np.linalg.lstsq(_monomials(xy[ok]), d[ok], rcond=None)[0]    # (10, 4)
+        u, v = np.meshgrid(x + TABLE_STEP_PX * np.arange(w // TABLE_STEP_PX + 2),
+                           y + TABLE_STEP_PX * np.arange(h // TABLE_STEP_PX + 2))
+        xy = camera.normalise(np.column_stack([u.ravel(), v.ravel()]))
+        d = exact_derivatives(projection, xy)
+        bad = ~np.all(np.isfinite(d), axis=1)      # a ray past the wall: the fit's value there
+        d[bad] = self.at(xy[bad])
+        self._table = d.reshape(u.shape + (4,)).astype(np.float32)
 
     def at(self, xy: np.ndarray) -> np.ndarray:
+        """The fields at canonical normalised points: the polynomial."""
         return _monomials(xy).dot(self.coef)
+
+    def at_roi(self, pts: np.ndarray) -> np.ndarray:
+        """The fields at ROI pixels (N, 2): the table, interpolated bilinearly. (N, 4) float32."""
+        grid = np.multiply(pts, _TABLE_SCALE, dtype=np.float32).reshape(-1, 1, 2)
+        return cv2.remap(self._table, grid, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, 4)

@@ -134,6 +134,40 @@ def test_the_fields_match_the_exact_projection_to_1_percent():
         exact, fit = exact_derivatives(proj, xy), field.at(xy)
         scale = np.abs(exact).max(axis=0)
         assert np.all(np.abs(fit - exact) <= 0.01 * scale), tilt
+        # the per-frame table (bilinear on an 8 px grid), off its grid points too
+        px = np.column_stack([u.ravel(), v.ravel()]) + [3.3, 5.1]
+        exact = exact_derivatives(proj, cam.normalise(px))
+        assert np.all(np.abs(field.at_roi(px - [x, y]) - exact) <= 0.001 * scale), tilt
+
+
+def test_the_filter_reads_the_stacked_model_from_one_gram_matrix():
+    """pose.py builds H'H and H'z from one product and one Gram matrix (cheap on the Pi); they are the
+    model written out row by row: axial rows (jc1, jc3, -jk1, -jc3 | z = moved axial - d1 tau - d3 hk),
+    lateral rows (jc0, jc2, -jk0, -jc2 | z = -moved lateral - d0 tau - d2 hk), each column centred."""
+    from crawler.geometry import make_projection
+    from crawler.measurement import recording_camera, thesis_roi
+    from crawler.pose import K_HEIGHT, PoseEstimator
+
+    cam = recording_camera(S.CameraSettings())
+    roi = thesis_roi(cam.width, cam.height)
+    pose = PoseEstimator(cam, make_projection("cylinder", S.MountSettings(tilt_deg=24.0).mount()), roi)
+    rng = np.random.default_rng(3)
+    jk, jc, moved = rng.normal(size=(23, 4)), rng.normal(size=(23, 4)), rng.normal(size=(2, 23))
+    tau, hk = 0.013, -0.0021
+    pose.s[K_HEIGHT] = hk
+    hh, hz, means = pose._information(jk, jc, moved, tau)
+
+    def c(a):
+        return a - a.mean()
+
+    d = jc - jk
+    z = np.concatenate([c(moved[1] - d[:, 1] * tau - d[:, 3] * hk), c(-moved[0] - d[:, 0] * tau - d[:, 2] * hk)])
+    H = np.column_stack([np.concatenate([c(jc[:, 1]), c(jc[:, 0])]), np.concatenate([c(jc[:, 3]), c(jc[:, 2])]),
+                         -np.concatenate([c(jk[:, 1]), c(jk[:, 0])]), -np.concatenate([c(jc[:, 3]), c(jc[:, 2])])])
+    assert np.allclose(hh, H.T @ H, rtol=1e-12, atol=1e-12)
+    assert np.allclose(hz, H.T @ z, rtol=1e-12, atol=1e-12)
+    assert np.allclose(means[:4], [jc[:, 1].mean(), jc[:, 3].mean(), -jk[:, 1].mean(), -jc[:, 3].mean()])
+    assert np.allclose(means[5:9], [jc[:, 0].mean(), jc[:, 2].mean(), -jk[:, 0].mean(), -jc[:, 2].mean()])
 
 
 def test_check_takes_no_abbreviated_flags_and_check_config_refuses_what_a_run_would(crawlerd, render_run):
