@@ -92,11 +92,10 @@ class GapBridge:
                                       # the odometer calls continuous after it is continuous with it only
         self._gap_prev_var = 0.0
         self._out_m = distance_m
-        self._jitter_var = 0.0        # the frame's pose/compression jitter (variance, m^2)
-        self._jitter_n = 0
+        self._jitter_var, self._jitter_n = 0.0, 0   # the frame's pose/compression jitter (m^2), its count
         self._last2: list = []        # the last two measured (t, vision distance), for that
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
-        self._remeasured_at = None    # when the odometer last measured its steps again (a new tilt)
+        self._remeasured_at = None    # when the odometer last measured its steps at a new tilt
 
     @property
     def sigma_m(self) -> float:
@@ -235,6 +234,7 @@ class GapBridge:
                 self._settle_or_reopen()
         if gain:                              # the motion model reads its speeds from the history
             self._hist = deque(_remeasured(list(self._hist), gain))
+        if getattr(est, "rescaled_m", 0.0):   # a new tilt's scale: its shape reads as a ramp
             self._remeasured_at = est.t_s
         if self._kf_vision is None:
             self._kf_vision = est.distance_m

@@ -321,7 +321,7 @@ class Odometer:
         renew = (stay < max(p.min_tracks * p.renew_floor, p.renew_share * kf.n0)
                  or abs(c.step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, c.n_in, c.sigma, keyframe=False)
-        est.continuous, est.remeasured_m = not self._blind_restart, fix.base_m
+        est.continuous, est.remeasured_m, est.rescaled_m = not self._blind_restart, fix.base_m, fix.rescaled_m
         self._blind_restart, self._unmeasured_since, self._after_dense, self._resumed = False, None, False, False
         if fix.remount is not None:           # the pose estimate moved the tilt: a keyframe at the new one;
             self.remount(fix.remount)         # the speed the gates hold was measured at the old one

@@ -54,6 +54,7 @@ class PoseFix:
     lat_m: float = 0.0
     base_m: float = 0.0
     remount: object = None
+    rescaled_m: float = 0.0    # of base_m, what a changed tilt gave (the rest: the keyframe's pose refined)
 
 
 NO_FIX = PoseFix()
@@ -150,6 +151,7 @@ class PoseEstimator:
                                     self._shutter(kf, t_idx, t_pts, t_s))
         else:                                      # a configured tilt reads the inliers only
             xy, base = None, 0.0
+        rescaled = base
         jc = self.tilt.field.at_roi(c.pts)
         hh, hz, means = self._information(kf.pose[0].take(idx, 0), jc, moved, self.tilt.tau)
         if any(self._limit):                       # pitch or height estimated at all
@@ -163,7 +165,7 @@ class PoseEstimator:
         if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
             self._forget()                         # its pitch and height were the tilt's error
         c.step, c.lat, kf.distance = c.step + step, c.lat + lat, kf.distance + base + extra
-        return PoseFix(step, lat, base + extra, remount)
+        return PoseFix(step, lat, base + extra, remount, rescaled + extra)
 
     def _shutter(self, kf, idx, pts, t_s):
         """Each track's rolling-shutter factor: the frame interval over the time between the two

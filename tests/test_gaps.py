@@ -315,3 +315,24 @@ def test_noise_on_a_constant_speed_is_not_read_as_a_brake_or_a_push():
         b = bridge.update(est(i / FPS, 0.0, tracking=False))
     assert b.distance_m == pytest.approx(0.3 * 89 / FPS, abs=0.01)
     assert bridge._gap.a0 == 0.0
+
+
+def test_a_refined_last_step_does_not_hide_a_brake_but_a_new_tilt_does():
+    # the pose estimator refines the step before each frame by micrometres (remeasured_m, no
+    # rescale); tilt auto re-measures at a new scale (rescaled_m), whose shape reads as a ramp. The
+    # first must not stop a brake being carried into the gap (with it on, all-at-once read +15 %)
+    def truth(t):                                        # as above: braking at 0.8 m/s^2 from 1.5 s
+        return 0.4 * t if t < 1.5 else 0.6 + 0.4 * min(t - 1.5, 0.5) - 0.4 * min(t - 1.5, 0.5) ** 2
+
+    def run(rescaled):
+        bridge = GapBridge()
+        for i, t in enumerate(np.arange(0, 3.4, 1 / FPS)):
+            e = est(t, truth(t), tracking=t < 1.8, keyframe=i % 10 == 0)
+            if t < 1.8 and i % 3 == 0:
+                e.remeasured_m = 1e-5 * (-1) ** i
+                e.rescaled_m = e.remeasured_m if rescaled else 0.0
+            b = bridge.update(e)
+        return b.distance_m
+
+    assert run(rescaled=False) == pytest.approx(truth(3.4), abs=0.01)   # stopped where it stopped
+    assert run(rescaled=True) > truth(3.4) + 0.05                       # the rate not read: carried on
