@@ -252,21 +252,24 @@ class VideoReplay:
 
 
 ENC_PARAMS = 19                   # AV_FRAME_DATA_VIDEO_ENC_PARAMS (FFmpeg >= 4.4)
+ENC_PARAMS_H264 = 1               # AV_VIDEO_ENC_PARAMS_H264: QP on H.264's scale (VP9's and MPEG-2's differ)
 _ENC_HEAD = struct.Struct("@INNii")  # AVVideoEncParams: nb_blocks, blocks_offset, block_size, type, qp
 
 
 def _mean_qp(frame) -> float | None:
     """The frame's mean quantiser over its blocks, from the encoding parameters FFmpeg exports
     (AVVideoEncParams: the frame's QP, then each block's delta at offset 16), read from the raw side
-    data so that every PyAV from 10 on gives it; None when the decoder gives none. Sigma's codec
-    term (crawler/codec.py) is then left out."""
+    data so that every PyAV from 10 on gives it; None when the decoder gives none, or for a codec
+    other than H.264 (the model is H.264's). Sigma's codec term (crawler/codec.py) is then left out."""
     for sd in frame.side_data:
         if getattr(sd.type, "value", sd.type) != ENC_PARAMS:     # an enum member, or a bare int (PyAV 10)
             continue
         buf = memoryview(sd).cast("B")
         if buf.nbytes < _ENC_HEAD.size:
             return None
-        n, offset, size, _, qp = _ENC_HEAD.unpack_from(buf)
+        n, offset, size, kind, qp = _ENC_HEAD.unpack_from(buf)
+        if kind != ENC_PARAMS_H264:
+            return None
         if n == 0 or size < 20 or offset + n * size > buf.nbytes:
             return float(qp)
         delta = np.frombuffer(buf, np.int32, count=n * size // 4, offset=offset)[4::size // 4]
