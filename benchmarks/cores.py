@@ -47,7 +47,7 @@ def run(frames, workers: int, depth=None, stages=None):
     from crawler.daemon import measure_serially
     from crawler.ports import Frame
 
-    odo = build(WINDOW, None)
+    odo = build(WINDOW, None, "on")         # the default config: pitch and height per frame
     src = (Frame(i, t, g) for i, (g, t) in enumerate(frames))
     t0 = time.perf_counter()
     if workers == 1:

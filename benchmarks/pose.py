@@ -33,7 +33,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 SHAKE = dict(bounce_mm=1.0, pitch_jitter_deg=0.3, roll_deg=3.0, sway_mm=2.0)
 BIG_SHAKE = dict(bounce_mm=2.0, pitch_jitter_deg=0.6, pitch_jitter_hz=1.5, bounce_hz=2.5, roll_deg=3.0, sway_mm=3.0)
-ON = ["odometry.estimate_pose=true"]      # pitch and height per frame (the default is off)
+ON = ["odometry.estimate_pose=true"]      # pitch and height per frame (the default with a configured tilt)
+OFF = ["odometry.estimate_pose=false"]
 
 TILT_CASES = {f"still-{t}deg-{v}": dict(tilt_deg=t, speed_m_s=v, duration_s=d, seed=30 + t)
               for t in (0, 24, 40) for v, d in ((0.04, 12), (0.3, 6))}
@@ -135,12 +136,13 @@ def jobs(out: Path, only: set) -> list:
     if "shake" in only:
         for n, f in SHAKE_CASES.items():
             tilt = f"mount.tilt_deg={f['tilt_deg']}"
-            todo += [(out, "shake", n, f, [tilt, *ON]), (out, "shake-off", n, f, [tilt]),
+            todo += [(out, "shake", n, f, [tilt, *ON]), (out, "shake-off", n, f, [tilt, *OFF]),
                      (out, "shake-auto", n, f, ["mount.tilt_deg=auto"])]
     if "fixed" in only:
         todo += [(out, "fixed", n, f, [f"mount.tilt_deg={f.get('tilt_deg', 0)}", *x, *ON])
                  for n, (f, x) in CASES.items()]
-        todo += [(out, "fixed-off", n, f, [f"mount.tilt_deg={f.get('tilt_deg', 0)}", *x]) for n, (f, x) in CASES.items()]
+        todo += [(out, "fixed-off", n, f, [f"mount.tilt_deg={f.get('tilt_deg', 0)}", *x, *OFF])
+                 for n, (f, x) in CASES.items()]
     return todo
 
 

@@ -391,8 +391,9 @@ def main(argv=None):
     ap.add_argument("--eps", type=float, help="LK convergence threshold (px)")
     ap.add_argument("--no-fb", action="store_true", help="skip the backward LK check")
     ap.add_argument("--cases", default=",".join(CASES))
-    ap.add_argument("--pose", choices=("off", "on", "auto"), default="off",
-                    help='pose estimation: off (the default config), on (estimate_pose), auto (tilt_deg = "auto")')
+    ap.add_argument("--pose", choices=("off", "on", "auto"), default="on",
+                    help='pose estimation: on (the default config: pitch and height per frame), off '
+                         '(estimate_pose = false), auto (tilt_deg = "auto")')
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

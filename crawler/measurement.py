@@ -74,15 +74,16 @@ def check_geometry(settings: Settings, camera: Camera, roi) -> float:
 
 def pose_params(settings: Settings) -> PoseParams | None:
     """What the pose estimator assumes of the car, or None when nothing is estimated."""
-    o = settings.odometry
-    if not (settings.mount.tilt_auto or o.estimate_pose):
+    o, auto = settings.odometry, settings.mount.tilt_auto
+    # unset: pitch and height with a configured tilt; with tilt "auto" alone none, as read at a tilt
+    # not yet found they take up its error
+    on = o.estimate_pose if o.estimate_pose is not None else not auto and o.method != "pixel"
+    if not (auto or on):
         return None
     if o.method == "pixel":
         what = '[mount] tilt_deg = "auto"' if settings.mount.tilt_auto else "[odometry] estimate_pose = true"
         raise BadConfig(f'{what} needs [odometry] method = "cylinder" or "plane": the pixel method has no '
                         "tilt or height to estimate")
-    # with tilt "auto" alone, no pitch or height: read at a tilt not yet found they take up its error
-    on = o.estimate_pose
     return PoseParams(auto_tilt=settings.mount.tilt_auto, pitch_sigma_deg=o.pitch_jitter_deg if on else 0.0,
                       bounce_sigma_mm=o.bounce_mm if on else 0.0)
 

@@ -47,11 +47,33 @@ def test_a_tilt_step_is_detected_and_followed_within_1_s(render_run, crawlerd, t
     assert 100 * abs(s["distance_m"] - run["truth"]["true_distance_m"]) / run["truth"]["path_length_m"] < 0.2
 
 
-def test_a_configured_tilt_gives_the_numbers_of_main_and_says_its_tilt(render_run, crawlerd, tmp_path):
+def test_a_configured_tilt_estimates_pitch_and_height_unless_told_not_to(render_run, crawlerd, tmp_path):
     run = render_run("auto24", tilt_deg=24, speed_m_s=0.3, duration_s=3.0, seed=54)
+    truth = run["truth"]
     s, rows, _ = replay(crawlerd, run, tmp_path, "--tilt", "24")
+    assert s["pose"]["tilt_auto"] is False and s["pose"]["tilt_deg"] == 24.0
+    assert rows[-1]["tilt_deg"] == 24.0 and abs(rows[-1]["pitch_deg"]) < 0.3 and rows[-1]["camera_height_m"] > 0
+    assert 100 * abs(s["distance_m"] - truth["true_distance_m"]) / truth["path_length_m"] < 0.02
+    s, rows, _ = replay(crawlerd, run, tmp_path, "--tilt", "24", "--set", "odometry.estimate_pose=false")
     assert "pose" not in s and "tilt_deg" not in rows[0]     # no estimator, no per-frame pose
-    assert 100 * abs(s["distance_m"] - run["truth"]["true_distance_m"]) / run["truth"]["path_length_m"] < 0.02
+    assert 100 * abs(s["distance_m"] - truth["true_distance_m"]) / truth["path_length_m"] < 0.02
+
+
+def test_estimate_pose_unset_means_with_a_configured_tilt_only():
+    from crawler.measurement import pose_params
+
+    def params(*overrides):
+        return pose_params(S.load(None, list(overrides)))
+
+    assert params().bounce_sigma_mm == 1.0 and not params().auto_tilt            # the default
+    assert params("odometry.estimate_pose=false") is None
+    auto = params("mount.tilt_deg='auto'")
+    assert auto.auto_tilt and auto.bounce_sigma_mm == 0.0 and auto.pitch_sigma_deg == 0.0   # tilt auto alone
+    both = params("mount.tilt_deg='auto'", "odometry.estimate_pose=true")
+    assert both.auto_tilt and both.bounce_sigma_mm == 1.0
+    assert params("odometry.method='pixel'") is None                               # nothing to estimate
+    with pytest.raises(BadConfig, match="estimate_pose = true needs"):
+        params("odometry.method='pixel'", "odometry.estimate_pose=true")
 
 
 def test_status_carries_the_tilt_and_its_sigma_finite(render_run):
