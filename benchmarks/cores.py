@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
@@ -47,7 +48,7 @@ def run(frames, workers: int, depth=None, stages=None):
     from crawler.daemon import measure_serially
     from crawler.ports import Frame
 
-    odo = build(WINDOW, None, "on")         # the default config: pitch and height per frame
+    odo = build(WINDOW, None, os.environ.get("CORES_POSE", "on"))   # the default config: pitch and height per frame
     src = (Frame(i, t, g) for i, (g, t) in enumerate(frames))
     t0 = time.perf_counter()
     if workers == 1:

@@ -29,9 +29,8 @@ class Estimate:
     spread_mm: float | None
     keyframe: bool
     continuous: bool = True           # False: a fresh start, the motion since the last tracked frame unknown
-    remeasured_m: float = 0.0         # of distance_m, metres earlier steps gained when measured again (a
-                                      # better tilt, crawler/autotilt.py): not motion of this frame
-    rescaled_m: float = 0.0           # ...of which a changed tilt gave (a new scale, not a refined last step)
+    rescaled_m: float = 0.0           # of distance_m, metres earlier steps gained when measured again at a
+                                      # new tilt (crawler/autotilt.py): not motion of this frame
     since: tuple | None = None        # a fresh start whose motion is known from an earlier frame on (a dense
                                       # shift confirmed over several): that frame's (t_s, distance_m)
     # filled in after the odometer (crawler/distance.py): the published distance's uncertainty and origin
@@ -45,7 +44,7 @@ class Estimate:
 
     def as_dict(self) -> dict:
         d = dict(self.__dict__)
-        del d["remeasured_m"], d["rescaled_m"], d["since"]
+        del d["rescaled_m"], d["since"]
         for k in ("distance_m", "lateral_m"):
             d[k] = round(d[k], 6)
         for k in ("speed_m_s", "roll_deg", "spread_mm", "sigma_m", "wheel_distance_m", "wheel_scale"):

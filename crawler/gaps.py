@@ -217,7 +217,7 @@ class GapBridge:
     # -- measured -------------------------------------------------------------------------------------
 
     def _tracked(self, est) -> Bridged:
-        gap_T, gain = 0.0, getattr(est, "remeasured_m", 0.0)    # (a plain estimate has no re-measure)
+        gap_T, gain = 0.0, getattr(est, "rescaled_m", 0.0)      # (a plain estimate has no re-measure)
         if self._settling is not None and not est.continuous:
             # another fresh start while the last one settles: what was measured since that one
             # settles the gap (or, too short, reopens it); this frame's motion is unknown again
@@ -232,10 +232,9 @@ class GapBridge:
             self._settling[1].append((est.t_s, est.distance_m))
             if est.t_s - self._settling[0] >= self.p.settle_s:
                 self._settle_or_reopen()
-        if gain:                              # the motion model reads its speeds from the history
+        if gain:                              # the motion model reads its speeds from the history;
             self._hist = deque(_remeasured(list(self._hist), gain))
-        if getattr(est, "rescaled_m", 0.0):   # a new tilt's scale: its shape reads as a ramp
-            self._remeasured_at = est.t_s
+            self._remeasured_at = est.t_s     # ...a new tilt's scale has the shape of a ramp
         if self._kf_vision is None:
             self._kf_vision = est.distance_m
         self._track_jitter(est)

@@ -72,7 +72,7 @@ class Odometer:
         self._last_good_t = 0.0
         self._prev_pts = None      # last tracked positions of the keyframe's features (ROI px)
         self._prev_origin = None   # ...and where they were found: (keyframe, indices)
-        self._last_step = 0.0      # distance gained since the keyframe at the previous frame
+        self._last_step = 0.0      # the tracks' step since the keyframe at the previous frame (before the pose fix)
         self._last_lat = 0.0
         self._velocity = 0.0       # the guess's speed (m/s)
         self._gates = FrameGates(self.params)
@@ -295,16 +295,16 @@ class Odometer:
         return self._accept(img, t_s, c, n_tracked)
 
     def _accept(self, img, t_s, c: Consensus, n_tracked: int) -> Estimate:
-        p, kf = self.params, self._kf
+        p, kf, raw = self.params, self._kf, (c.step, c.lat)   # the tracks' own step: what guesses the next
         fix = self.pose.measure(kf, c, t_s)        # corrects c and kf.distance for the pose (crawler/pose.py)
-        self._speed.remeasured(fix.base_m)
+        self._speed.remeasured(fix.rescaled_m)     # a new tilt's scale (a refined last step: micrometres)
         dt_prev = t_s - self._last_good_t
-        delta = c.step - self._last_step
+        delta = raw[0] - self._last_step
         if dt_prev > 0:
             self._velocity = delta / dt_prev
             self._gates.measured(self._velocity, t_s)
         self._motion_v = delta * self._jv
-        self._last_step, self._last_lat = c.step, c.lat
+        self._last_step, self._last_lat = raw
         self._good_roi, self._good_coarse = img.copy(), None   # the frame buffer goes back to the camera
         self._good_at, self.reference_seq = (kf.distance + c.step, kf.lateral + c.lat), self.reference_seq + 1
         self._spread.accepted(c.step, c.sigma, c.ratio)
@@ -321,7 +321,7 @@ class Odometer:
         renew = (stay < max(p.min_tracks * p.renew_floor, p.renew_share * kf.n0)
                  or abs(c.step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, c.n_in, c.sigma, keyframe=False)
-        est.continuous, est.remeasured_m, est.rescaled_m = not self._blind_restart, fix.base_m, fix.rescaled_m
+        est.continuous, est.rescaled_m = not self._blind_restart, fix.rescaled_m
         self._blind_restart, self._unmeasured_since, self._after_dense, self._resumed = False, None, False, False
         if fix.remount is not None:           # the pose estimate moved the tilt: a keyframe at the new one;
             self.remount(fix.remount)         # the speed the gates hold was measured at the old one

@@ -192,6 +192,37 @@ def test_the_filter_reads_the_stacked_model_from_one_gram_matrix():
     assert np.allclose(means[5:9], [jc[:, 0].mean(), jc[:, 2].mean(), -jk[:, 0].mean(), -jc[:, 2].mean()])
 
 
+def test_a_refined_keyframe_pose_is_not_a_rescale():
+    """The estimator refines the step that ended at the keyframe as its pose becomes better known
+    (base_m, micrometres, on most frames). That is no re-measure at a new tilt (rescaled_m): the
+    gap bridge and the speed filter would read the re-measure's shape as a ramp (with it, a brake
+    before a gap was never read: all-at-once +15 %), and rebuild their windows on every frame."""
+    from types import SimpleNamespace
+
+    from crawler.geometry import make_projection
+    from crawler.measurement import recording_camera, thesis_roi
+    from crawler.pose import PoseEstimator
+
+    cam = recording_camera(S.CameraSettings())
+    roi = thesis_roi(cam.width, cam.height)
+    pose = PoseEstimator(cam, make_projection("cylinder", S.MountSettings(tilt_deg=24.0).mount()), roi)
+    rng = np.random.default_rng(5)
+    pts = rng.uniform(30, 330, size=(25, 2)).astype(np.float32)
+    both, idx = np.ones(25, bool), np.arange(25)
+    fixes, t = [], 0.0
+    for k in range(6):                                 # each keyframe on the frame just measured
+        kf = SimpleNamespace(pts=pts, t_s=t, distance=0.0)
+        pose.keyframe(kf, pts.astype(np.float64) + roi[:2], t)
+        for j in (1, 2, 3):
+            t += 1 / 90
+            moved = np.vstack([rng.normal(0, 1e-5, 25), 0.003 * j + rng.normal(0, 2e-5, 25)])
+            c = SimpleNamespace(idx=idx, pts=pts + np.float32([0.0, 2.0 * j]), tracks=(idx, pts, moved, both),
+                                sigma=2e-5, step=0.003 * j, lat=0.0)
+            fixes.append(pose.measure(kf, c, t))
+    assert any(abs(f.base_m) > 0 for f in fixes)       # the keyframe's pose refined...
+    assert all(f.rescaled_m == 0.0 for f in fixes)     # ...never a rescale at a configured tilt
+
+
 def test_check_takes_no_abbreviated_flags_and_check_config_refuses_what_a_run_would(crawlerd, render_run):
     # `calibrate check --tilt 20` once read as --tilt-tolerance 20: a PASS for any tilt within 20 deg
     run = render_run("auto24", tilt_deg=24, speed_m_s=0.3, duration_s=3.0, seed=54)
