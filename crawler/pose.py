@@ -105,6 +105,7 @@ class PoseEstimator:
         self._sig = list(self._limit)              # the levels the tracks show, at most the configured
         self._level = [[0.0, 0.0], [0.0, 0.0]]     # running sums: excess square, expected per unit variance
         self._tau = (self.p.pitch_tau_s, self.p.bounce_tau_s)
+        self._keep = [lim > 0 for lim in self._limit] * 2   # not estimated at all: held at zero
         self._decay = (None,)                      # (dt, its decay of s and P, of the variances)
         self._forget()
         self._t = None
@@ -223,7 +224,6 @@ class PoseEstimator:
     def _forget(self):
         """Back to the prior: no pitch or height known."""
         a, b = self._sig[0] ** 2, self._sig[1] ** 2
-        self._keep = [a > 0, b > 0] * 2            # a zero prior variance stays zero: not estimated
         self.s = np.zeros(4)
         self.P = np.array([[a, 0.0, a, 0.0], [0.0, b, 0.0, b], [a, 0.0, a, 0.0], [0.0, b, 0.0, b]])
 
