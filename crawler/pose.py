@@ -42,6 +42,7 @@ class PoseParams:
     bounce_tau_s: float = 0.3
     noise_scale: float = 4.0          # a feature's error persists over its keyframe's frames: count each ~1/16
     level_memory_s: float = 2.0       # how long the pitch and bounce the tracks show are remembered
+    warm_up_s: float = 0.5            # ...and how long they are learned before they correct the distance
     tilt: AutoTiltParams = AutoTiltParams()
 
 
@@ -109,6 +110,7 @@ class PoseEstimator:
         self._decay = (None,)                      # (dt, its decay of s and P, of the variances)
         self._forget()
         self._t = None
+        self._warm_until = None                    # the first measured frame's time + warm_up_s
         self._serial = 0
         self._end = None                           # the last measured frame's d(step)/d(pitch, height)
         self._closing = None                       # ...when that frame is the keyframe now
@@ -155,9 +157,13 @@ class PoseEstimator:
         rescaled = base
         jc = self.tilt.field.at_roi(c.pts)
         hh, hz, means = self._information(kf.pose[0].take(idx, 0), jc, moved, self.tilt.tau)
+        if self._warm_until is None:
+            self._warm_until = t_s + self.p.warm_up_s
+        warm = t_s >= self._warm_until             # before, the levels are still the prior's
         if any(self._limit):                       # pitch or height estimated at all
-            base += self._filter(hh, hz, c.sigma, t_s - kf.t_s)
-        step, lat, sens = self._correction(means, self.tilt.tau)
+            refined = self._filter(hh, hz, c.sigma, t_s - kf.t_s)
+            base += refined if warm else 0.0
+        step, lat, sens = self._correction(means, self.tilt.tau, warm)
         if self.tilt.auto:
             self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
                                  tuple(self.s), float(moved[1].mean()) + step, sens))
@@ -318,7 +324,7 @@ class PoseEstimator:
             return 0.0
         return -float(self._closing[0] * change[0] + self._closing[1] * change[1])
 
-    def _correction(self, means, tau):
+    def _correction(self, means, tau, pose: bool = True):
         """Metres to add to the step and the lateral step, and d step/d tilt. Tilt and pitch count
         where each feature was and is; the height only as this frame's less the keyframe's (the
         scale it causes): its level is not observable, and a level that wandered would scale every
@@ -326,7 +332,7 @@ class PoseEstimator:
         m = means                                  # of H's columns: axial jc1, jc3, -jk1; lateral jc0, jc2, -jk0
         mc, mk = (m[5], m[0], m[6], m[1]), (-m[7], -m[2])
         self._end = (mc[1], mc[3])
-        pc, hc, pk, hk = self.s.tolist()
+        pc, hc, pk, hk = self.s.tolist() if pose else (0.0, 0.0, 0.0, 0.0)
         dh = hc - hk
         step = (mk[1] - mc[1]) * tau + mk[1] * pk - mc[1] * pc - mc[3] * dh
         lat = (mc[0] - mk[0]) * tau + mc[0] * pc - mk[0] * pk + mc[2] * dh

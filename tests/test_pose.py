@@ -192,11 +192,8 @@ def test_the_filter_reads_the_stacked_model_from_one_gram_matrix():
     assert np.allclose(means[5:9], [jc[:, 0].mean(), jc[:, 2].mean(), -jk[:, 0].mean(), -jc[:, 2].mean()])
 
 
-def test_a_refined_keyframe_pose_is_not_a_rescale():
-    """The estimator refines the step that ended at the keyframe as its pose becomes better known
-    (base_m, micrometres, on most frames). That is no re-measure at a new tilt (rescaled_m): the
-    gap bridge and the speed filter would read the re-measure's shape as a ramp (with it, a brake
-    before a gap was never read: all-at-once +15 %), and rebuild their windows on every frame."""
+def _synthetic_run(params, keyframes=6):
+    """PoseFix of each frame of a smooth synthetic run: keyframes on the frame just measured, 90 fps."""
     from types import SimpleNamespace
 
     from crawler.geometry import make_projection
@@ -205,12 +202,12 @@ def test_a_refined_keyframe_pose_is_not_a_rescale():
 
     cam = recording_camera(S.CameraSettings())
     roi = thesis_roi(cam.width, cam.height)
-    pose = PoseEstimator(cam, make_projection("cylinder", S.MountSettings(tilt_deg=24.0).mount()), roi)
+    pose = PoseEstimator(cam, make_projection("cylinder", S.MountSettings(tilt_deg=24.0).mount()), roi, params)
     rng = np.random.default_rng(5)
     pts = rng.uniform(30, 330, size=(25, 2)).astype(np.float32)
     both, idx = np.ones(25, bool), np.arange(25)
     fixes, t = [], 0.0
-    for k in range(6):                                 # each keyframe on the frame just measured
+    for k in range(keyframes):
         kf = SimpleNamespace(pts=pts, t_s=t, distance=0.0)
         pose.keyframe(kf, pts.astype(np.float64) + roi[:2], t)
         for j in (1, 2, 3):
@@ -218,9 +215,33 @@ def test_a_refined_keyframe_pose_is_not_a_rescale():
             moved = np.vstack([rng.normal(0, 1e-5, 25), 0.003 * j + rng.normal(0, 2e-5, 25)])
             c = SimpleNamespace(idx=idx, pts=pts + np.float32([0.0, 2.0 * j]), tracks=(idx, pts, moved, both),
                                 sigma=2e-5, step=0.003 * j, lat=0.0)
-            fixes.append(pose.measure(kf, c, t))
+            fixes.append((t, pose.measure(kf, c, t)))
+    return fixes
+
+
+def test_a_refined_keyframe_pose_is_not_a_rescale():
+    """The estimator refines the step that ended at the keyframe as its pose becomes better known
+    (base_m, micrometres, on most frames). That is no re-measure at a new tilt (rescaled_m): the
+    gap bridge and the speed filter would read the re-measure's shape as a ramp (with it, a brake
+    before a gap was never read: all-at-once +15 %), and rebuild their windows on every frame."""
+    from crawler.pose import PoseParams
+
+    fixes = [f for _, f in _synthetic_run(PoseParams(warm_up_s=0.0))]
     assert any(abs(f.base_m) > 0 for f in fixes)       # the keyframe's pose refined...
     assert all(f.rescaled_m == 0.0 for f in fixes)     # ...never a rescale at a configured tilt
+
+
+def test_the_pitch_and_height_correct_nothing_while_their_levels_are_learned():
+    """For warm_up_s after the first measured frame the levels are still the configured prior's: a
+    smooth run's first keyframes would take up model noise as pitch (the demo: -0.023 % instead of
+    -0.003 %), so nothing is corrected until then."""
+    from crawler.pose import PoseParams
+
+    fixes = _synthetic_run(PoseParams(warm_up_s=0.1), keyframes=12)
+    early = [f for t, f in fixes if t < 0.1]
+    late = [f for t, f in fixes if t >= 0.1]
+    assert early and all(f.step_m == 0.0 and f.base_m == 0.0 for f in early)
+    assert any(f.step_m != 0.0 for f in late)
 
 
 def test_check_takes_no_abbreviated_flags_and_check_config_refuses_what_a_run_would(crawlerd, render_run):
