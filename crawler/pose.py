@@ -159,11 +159,9 @@ class PoseEstimator:
         hh, hz, means = self._information(kf.pose[0].take(idx, 0), jc, moved, self.tilt.tau)
         if self._warm_until is None:
             self._warm_until = t_s + self.p.warm_up_s
-        warm = t_s >= self._warm_until             # before, the levels are still the prior's
         if any(self._limit):                       # pitch or height estimated at all
-            refined = self._filter(hh, hz, c.sigma, t_s - kf.t_s)
-            base += refined if warm else 0.0
-        step, lat, sens = self._correction(means, self.tilt.tau, warm)
+            base += self._filter(hh, hz, c.sigma, t_s - kf.t_s, learn_only=t_s < self._warm_until)
+        step, lat, sens = self._correction(means, self.tilt.tau)
         if self.tilt.auto:
             self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
                                  tuple(self.s), float(moved[1].mean()) + step, sens))
@@ -217,10 +215,14 @@ class PoseEstimator:
 
     # -- the filter -------------------------------------------------------------------------------
 
-    def _filter(self, hh, hz, sigma, since_kf) -> float:
+    def _filter(self, hh, hz, sigma, since_kf, learn_only=False) -> float:
         """This frame's tracks (the model's information H'H, H'z) into the pitch and height: the
-        metres the keyframe's better known pose gives the step before it."""
+        metres the keyframe's better known pose gives the step before it. While the levels are
+        still the prior's (learn_only, warm_up_s) the state stays at zero: nothing is corrected,
+        and the estimate begins later as from a fresh start, with the levels the tracks showed."""
         self._learn_levels(hh, hz, sigma, since_kf)
+        if learn_only:
+            return 0.0
         var = self._noise_var(sigma)
         before = self.s[2:].tolist()
         self._update(hh / var, hz / var)
@@ -324,7 +326,7 @@ class PoseEstimator:
             return 0.0
         return -float(self._closing[0] * change[0] + self._closing[1] * change[1])
 
-    def _correction(self, means, tau, pose: bool = True):
+    def _correction(self, means, tau):
         """Metres to add to the step and the lateral step, and d step/d tilt. Tilt and pitch count
         where each feature was and is; the height only as this frame's less the keyframe's (the
         scale it causes): its level is not observable, and a level that wandered would scale every
@@ -332,7 +334,7 @@ class PoseEstimator:
         m = means                                  # of H's columns: axial jc1, jc3, -jk1; lateral jc0, jc2, -jk0
         mc, mk = (m[5], m[0], m[6], m[1]), (-m[7], -m[2])
         self._end = (mc[1], mc[3])
-        pc, hc, pk, hk = self.s.tolist() if pose else (0.0, 0.0, 0.0, 0.0)
+        pc, hc, pk, hk = self.s.tolist()
         dh = hc - hk
         step = (mk[1] - mc[1]) * tau + mk[1] * pk - mc[1] * pc - mc[3] * dh
         lat = (mc[0] - mk[0]) * tau + mc[0] * pc - mk[0] * pk + mc[2] * dh
