@@ -124,7 +124,7 @@ class PoseEstimator:
     def keyframe(self, kf, px, t_s):
         """A new keyframe (its features at frame pixels px): their fields, and its pose is this
         frame's (a clone of the state)."""
-        xy = self.camera.normalise(px)
+        xy = self.camera.normalise(px) if self.tilt.auto else None    # tilt auto's readings need them
         self._serial += 1
         kf.pose = (self.tilt.field.at_roi(kf.pts), xy, self._serial)
         continuous = self._t is None or t_s == self._t    # the run's first, or on the frame just measured
