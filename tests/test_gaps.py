@@ -37,6 +37,26 @@ def drive(truth, blind, end_s, restart_fresh=True, bridge=None):
     return [np.array(c) for c in zip(*out)]
 
 
+def brake_stand_go(v, brake_at, decel, start_at, accel):
+    """The true distance of a crawler that cruises at v, brakes at decel from brake_at to a stop,
+    stands, and from start_at speeds up at accel to v again."""
+    stop_at, go_at = brake_at + v / decel, start_at + v / accel
+    stand = v * brake_at + v * v / (2 * decel)
+
+    def truth(t):
+        if t < brake_at:
+            return v * t
+        if t < stop_at:
+            return v * t - 0.5 * decel * (t - brake_at) ** 2
+        if t < start_at:
+            return stand
+        if t < go_at:
+            return stand + 0.5 * accel * (t - start_at) ** 2
+        return stand + v * v / (2 * accel) + v * (t - go_at)
+
+    return truth
+
+
 def test_a_blind_stretch_at_constant_speed_is_carried_and_flagged():
     t, d, s, br = drive(lambda t: 0.3 * t, [(2.0, 3.0)], 5.0)
     inside = (t >= 2.0) & (t < 3.0)
@@ -266,17 +286,7 @@ def test_a_long_gap_may_hide_a_stand_and_its_sigma_says_so():
     # 0.4 m/s before and after a 3 s gap: the trapezoid (1.2 m) stands, but the crawler may have
     # braked, stood and started again in it (down to 0.16 m at 1 m/s^2): this one went 0.4 m, with
     # a 1.6 s stand, and that is within 2 sigma. A gap too short to stop and start in keeps the random walk's sigma
-    def stop_and_go(t):
-        if t < 2.0:
-            return 0.4 * t
-        if t < 2.4:
-            return 0.8 + 0.4 * (t - 2) - 0.5 * (t - 2) ** 2
-        if t < 4.0:
-            return 0.88
-        if t < 4.4:
-            return 0.88 + 0.5 * (t - 4) ** 2
-        return 0.96 + 0.4 * (t - 4.4)
-
+    stop_and_go = brake_stand_go(0.4, 2.0, 1.0, 4.0, 1.0)      # stands at 0.88 m from 2.4 s to 4.0 s
     t, d, s, br = drive(stop_and_go, [(2.01, 4.99)], 6.0)
     assert d[-1] - stop_and_go(t[-1]) == pytest.approx(1.2 - 0.4, abs=0.02)   # read as driven through
     assert abs(d[-1] - stop_and_go(t[-1])) < 2 * s[-1]
@@ -289,17 +299,7 @@ def test_a_crawler_still_speeding_up_after_a_stop_in_a_gap_says_when_it_started(
     # braking at 1 m/s^2 into a gap, a stand, then speeding up at 0.5 m/s^2 from 3.0 s: seen again
     # at 3.2 s at 0.1 m/s and still speeding up. The stand's length is no guess then: it started
     # 0.2 s before it was seen
-    def truth(t):
-        if t < 2.0:
-            return 0.3 * t
-        if t < 2.3:
-            return 0.6 + 0.3 * (t - 2) - 0.5 * (t - 2) ** 2
-        if t < 3.0:
-            return 0.645
-        if t < 3.6:
-            return 0.645 + 0.25 * (t - 3) ** 2
-        return 0.735 + 0.3 * (t - 3.6)
-
+    truth = brake_stand_go(0.3, 2.0, 1.0, 3.0, 0.5)            # stands at 0.645 m from 2.3 s to 3.0 s
     t, d, s, br = drive(truth, [(2.16, 3.19)], 4.5)
     assert d[-1] == pytest.approx(truth(t[-1]), abs=3e-3)
 
