@@ -268,7 +268,7 @@ class PoseEstimator:
         keep = math.exp(-1.0 / (30.0 * self.p.level_memory_s))      # per frame, at ~30 fps
         since = max(since_kf, 0.0)
         (e, u), sig = self._level, []
-        for i, tau in enumerate((self.p.pitch_tau_s, self.p.bounce_tau_s)):
+        for i, tau in enumerate(self._tau):
             e[i] = e[i] * keep + d[i] * d[i] - cov[i]
             u[i] = u[i] * keep + 2.0 * (1.0 - math.exp(-since / tau))
             level = e[i] / u[i] if u[i] > 0 else 0.0
