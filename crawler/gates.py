@@ -9,6 +9,10 @@
 - Motion: a measured speed that changed faster than any crawler can since the last good frame
   (texture that stays put in the image while the wall moves: a specular highlight, blocks the encoder
   copied) is refused, until it has said the same long enough to be a real stop (a collision).
+- Copies: after a gap, a frame the video encoder copied from the last one (almost no pixel changed)
+  is no news of the motion. A camera's own frames always differ (sensor noise), and a moving
+  textured wall cannot be copied; a smooth wall under a fixed highlight can, and its copied blocks
+  read as a stand. The motion gate cannot tell that from a stop in the gap, so a copy never ends one.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ class FrameGates:
         self.t_ref = 0.0              # ...and when
         self._refused_since = None    # the first of a run of refused measurements
         self._seen = 0
+        self._rows = None             # every 8th row of the last frame, kept only inside a gap
 
     def textured(self, energy: float) -> bool:
         ref = self.texture_ref
@@ -44,6 +49,15 @@ class FrameGates:
     def dark(self, roi) -> bool:
         light = self.light_ref
         return light is not None and _grey(roi) < self.p.dense.dark_share * light
+
+    def copied(self, roi, in_gap: bool) -> bool:
+        """Is this frame (inside a gap) the encoder's copy of the one before? Costs nothing while
+        tracking: the rows are kept only inside a gap."""
+        rows, prev = roi[::8], self._rows
+        self._rows = rows.copy() if in_gap else None
+        if not in_gap or prev is None or prev.shape != rows.shape:
+            return False
+        return cv2.countNonZero(cv2.absdiff(rows, prev)) < self.p.dense.min_changed * rows.size
 
     def remember(self, roi, energy: float):
         """A measured frame: what the lit, textured wall looks like lately (the light, which

@@ -61,8 +61,7 @@ class Odometer:
 
     def reset(self, distance: float = 0.0, lateral: float = 0.0):
         """Forget the keyframe and start counting from the given distance."""
-        self.distance = distance
-        self.lateral = lateral
+        self.distance, self.lateral = distance, lateral
         self.frame = -1
         self.lost_frames = 0
         self._kf: Keyframe | None = None
@@ -85,6 +84,7 @@ class Odometer:
         self._spread = SpreadGate(self.params, self.m_per_px)
         self._blind_restart = False
         self._resumed = False      # the keyframe is a saved one: the first match must be clear
+        self._copy = False         # this frame is, inside a gap, the encoder's copy of the last (gates.py)
 
     def set_distance(self, distance: float = 0.0):
         """Count from `distance` now, without losing track (an operator's reset mid-run)."""
@@ -101,6 +101,7 @@ class Odometer:
         roi = frame[y:y + h, x:x + w]
         try:
             energy = flow.texture_energy(roi)
+            self._copy = self._gates.copied(roi, self._unmeasured_since is not None)
             if not self._gates.textured(energy):
                 return self._untextured(roi, t_s, energy)
             self._dense.reset()
@@ -281,7 +282,7 @@ class Odometer:
         n_tracked = len(idx)
         c = self._consensus(idx, pts1, t_s) if n_tracked >= self.params.min_tracks else None
         clear = c is not None and (not self._resumed or reacquired(c, n_visible, self.params, self.m_per_px))
-        if c is not None and not (self._plausible(c, t_s) and clear):
+        if c is not None and (self._copy or not (self._plausible(c, t_s) and clear)):
             c = None
         if c is None:
             if rescue and self._good_roi is not None and self._kf.t_s < self._last_good_t:

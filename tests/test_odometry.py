@@ -188,3 +188,26 @@ def test_a_frame_smoother_than_sensor_noise_is_not_measured_at_all(texture):
         ests.append(odo.update(img, i / 30))
     assert max(energy) < 0.4                              # what flattened video shows (docs/odometry.md)
     assert not any(e.tracking for e in ests)
+
+
+def test_after_a_gap_frames_the_encoder_copied_are_no_stand_but_a_camera_s_own_are(texture):
+    # 8 px a frame, then 20 black frames; after them the image stands still. As copies of one
+    # frame (a smooth wall under a fixed highlight, which the encoder copies while the wall moves)
+    # they are no news of the motion, and the gap stays open; as a camera's own frames (each with
+    # its sensor noise) they are a stand, measured
+    rng = np.random.default_rng(3)
+    still = view(texture, 5000.0)
+    for noise in (0.0, 1.5):
+        odo, _ = run(texture, np.arange(20) * 8.0)
+        black = np.zeros((480, 640), np.uint8)
+        for i in range(20, 40):
+            odo.update(black, i / 30)
+        ests = []
+        for i in range(40, 70):
+            img = np.clip(still + rng.normal(0, noise, still.shape), 0, 255).astype(np.uint8) if noise else still
+            ests.append(odo.update(img, i / 30))
+        measured = [e for e in ests if e.tracking]
+        if noise:
+            assert len(measured) > 10 and max(abs(e.distance_m - measured[0].distance_m) for e in measured) < 1e-5
+        else:
+            assert not measured
