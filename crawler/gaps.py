@@ -360,8 +360,7 @@ class GapBridge:
             return v1 * T, 0.0
         stop = self._stops(g, T)
         if stop is not None and abs(v1) > self.p.speed_sigma_m_s and a1 * v1 > 0 and T - v1 / a1 >= stop:
-            # braked to a stop, and still speeding up when seen again: it started from rest v1 / a1
-            # before, so it stood in between
+            # braked to a stop, still speeding up when seen again: it started from rest v1 / a1 before
             return self._travel(g, T) + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
         if stop is not None and abs(v1) > self.p.speed_sigma_m_s:
             # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
@@ -375,15 +374,17 @@ class GapBridge:
         if stop is not None:
             return self._travel(g, T), 0.0    # stopped, and still stopped
         trapezoid = 0.5 * (g.v0 + v1) * T     # a constant acceleration over the gap
-        # ...or, in a gap long enough to brake to a stop and start again, a stand the video does not
-        # show (an operator stops to look): anything down to braking and starting at the crawler's
-        # best. Even odds of driving through and of a stand of any length: an error uniform over
-        # that range half the time, mean square range^2 / 6
-        a = self.p.max_accel_m_s2
-        if g.v0 * v1 > 0 and T > (abs(g.v0) + abs(v1)) / a:
-            least = math.copysign((g.v0 * g.v0 + v1 * v1) / (2 * a), v1)
-            return trapezoid, (trapezoid - least) ** 2 / 6.0
-        return trapezoid, 0.0
+        # ...but the speed changed at a moment the video does not show: anywhere from at once to
+        # at the last (uniform: range^2 / 12); or, in a gap long enough to brake to a stop and
+        # start again, a stand the video does not show either (an operator stops to look):
+        # anything down to braking and starting at the crawler's best. Even odds of driving through
+        # and of a stand of any length: an error uniform over that range half the time (range^2 / 6)
+        a, v0 = self.p.max_accel_m_s2, g.v0
+        when = max(0.0, abs(v0 - v1) * T - abs(v0 * v0 - v1 * v1) / a) ** 2 / 12.0
+        if v0 * v1 >= 0 and T > (abs(v0) + abs(v1)) / a:
+            least = math.copysign((v0 * v0 + v1 * v1) / (2 * a), v0 + v1)
+            return trapezoid, max(when, (trapezoid - least) ** 2 / 6.0)
+        return trapezoid, when
 
 
 _TIME_EPS = 1e-6                  # frame times are sums of intervals: 3 / 30 s may come out under 0.1 s

@@ -295,6 +295,18 @@ def test_a_long_gap_may_hide_a_stand_and_its_sigma_says_so():
     assert s_short[-1] < 1.5 * (q * T ** 3 / 12 + 0.5 * (0.005 * T) ** 2) ** 0.5 + 0.002
 
 
+def test_a_brake_to_a_stop_at_a_moment_the_gap_hides_is_within_two_sigma():
+    # 0.3 m/s into a 1.5 s gap, standing after it: the trapezoid puts the brake in the middle
+    # (0.225 m), but it may have come at once (0.045 m at 1 m/s^2) or at the last moment (0.405 m).
+    # These braked at once and at the last moment: each is within 2 sigma, where the random walk
+    # alone (75 mm) put them at 2.4 sigma
+    for brake_at in (2.2, 1.05):
+        truth = brake_stand_go(0.3, brake_at, 1.0, 99.0, 1.0)
+        t, d, s, br = drive(truth, [(1.01, 2.51)], 4.0)
+        err = d[-1] - truth(t[-1])
+        assert abs(err) == pytest.approx(0.17, abs=0.015) and abs(err) < 1.6 * s[-1]
+
+
 def test_a_crawler_still_speeding_up_after_a_stop_in_a_gap_says_when_it_started():
     # braking at 1 m/s^2 into a gap, a stand, then speeding up at 0.5 m/s^2 from 3.0 s: seen again
     # at 3.2 s at 0.1 m/s and still speeding up. The stand's length is no guess then: it started
