@@ -121,11 +121,14 @@ class Camera:
 
 @dataclass(frozen=True)
 class Mount:
-    """Where the camera sits in the pipe: radius, height below the crown, forward tilt."""
+    """Where the camera sits in the pipe: radius, height below the crown, forward tilt, and how far
+    it is off the pipe's vertical mid-plane (+: toward image right; the car's weave, which only
+    the cylinder sees: to a plane or the pixel method it is a shift along the arc)."""
 
     pipe_radius_m: float
     height_m: float
     tilt_rad: float = 0.0
+    sway_m: float = 0.0
 
     @classmethod
     def from_car(cls, pipe_diameter_m: float, car_width_m: float, camera_offset_m: float,
@@ -238,19 +241,19 @@ class CylinderProjection(Projection):
 
     def _hit(self, xy):
         """Ray parameter and hit point; only the x and z components matter for the circle."""
-        r = self.mount.pipe_radius_m
+        r, xc = self.mount.pipe_radius_m, -self.mount.sway_m
         zc = r - self.mount.height_m
         st, ct = math.sin(self.mount.tilt_rad), math.cos(self.mount.tilt_rad)
         xn, yn = xy[:, 0], xy[:, 1]
         dz = ct + yn * st
         a = xn * xn + dz * dz          # dx = -xn
-        b = zc * dz
+        b = zc * dz - xc * xn
         # camera inside the pipe: c < 0, so the positive root always exists unless the ray is axial
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = (np.sqrt(b * b - a * (zc * zc - r * r)) - b) / a
+            t = (np.sqrt(b * b - a * (xc * xc + zc * zc - r * r)) - b) / a
         if not a.all():
             t[a <= 1e-12] = np.nan
-        return t, -t * xn, zc + t * dz, st - yn * ct
+        return t, xc - t * xn, zc + t * dz, st - yn * ct
 
     def to_wall(self, xy):
         t, x, z, dy = self._hit(xy)
@@ -259,7 +262,7 @@ class CylinderProjection(Projection):
     def to_image(self, sy):
         r = self.mount.pipe_radius_m
         phi = sy[:, 0] / r
-        rel = np.column_stack([-r * np.sin(phi), sy[:, 1],
+        rel = np.column_stack([self.mount.sway_m - r * np.sin(phi), sy[:, 1],
                                r * np.cos(phi) - (r - self.mount.height_m)])
         return self.mount.to_camera(rel)
 

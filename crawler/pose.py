@@ -1,24 +1,27 @@
-"""The camera's pose from the flow field: its tilt, and each frame's pitch and height. Pure: no I/O.
+"""The camera's pose from the flow field: its tilt, and each frame's pitch, height and sway. Pure: no I/O.
 
 The odometer measures every frame against a keyframe with one mount (tilt, height below the crown).
 The real camera moves about it: the car bounces (height), pitches (a rotation), and the operator may
 turn the camera (the tilt itself). Each shows in the tracks as a pattern of its own, fixed by the
 geometry (crawler/posefield.py gives, for every feature, how its wall position moves per radian of
-tilt and per metre of height):
+tilt and per metre of height or sway):
 
 - pitch moves every row by about the same number of pixels, whatever the wall's distance, where
   travel moves them by the wall metres the row sees: the row profile of the flow tells them apart
   (weakly: a half-frame ROI sees little depth range);
 - height scales the image about the point straight above the camera: it spreads the features
   across the image, which travel does not (well seen);
+- sway (the car weaving across the pipe) shifts the view along the arc, and in a cylinder also
+  bends it: the rays meet the curved wall at other depths, an axial pattern across the image that,
+  left out, reads as pitch (at 40 deg 2 mm of sway put 0.2 deg of error in every pitch reading);
 - the tilt shows as a profile that grows with the step itself: for a cylinder, the wall metres each
   row sees depend on the tilt, so a wrong tilt makes far and near features disagree on the step.
 
-Per frame, the pitch and height of this frame and of its keyframe (a clone of the state when the
-keyframe was taken) are one small Kalman filter, with the jitter and bounce as stationary priors.
-The step the odometer reports is then corrected for the pose of both frames, so a bounce or a pitch
-is not read as travel. The tilt is configured (FixedTilt) or estimated (crawler/autotilt.py).
-docs/odometry.md, "Pose", has the math.
+Per frame, the pitch, height and sway of this frame and of its keyframe (a clone of the state when
+the keyframe was taken) are one small Kalman filter, with the jitter, bounce and weave as
+stationary priors. The step the odometer reports is then corrected for the pose of both frames, so
+a bounce, a pitch or a weave is not read as travel. The tilt is configured (FixedTilt) or estimated
+(crawler/autotilt.py). docs/odometry.md, "Pose", has the math.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import numpy as np
 
 from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop, far_apart
 from .estimate import finite_round
+from .posemodel import HEIGHT, K_HEIGHT, K_PITCH, MODEL, MODEL_FLAT, N_POSE, PITCH, least_squares
 
 
 @dataclass(frozen=True)
@@ -40,6 +44,8 @@ class PoseParams:
     pitch_tau_s: float = 0.1          # ...how long a pitch lasts
     bounce_sigma_mm: float = 1.0      # the suspension's bounce ([odometry] bounce_mm); 0: not estimated
     bounce_tau_s: float = 0.3
+    sway_sigma_mm: float = 2.0        # the car's weave across the pipe ([odometry] sway_mm); 0: not estimated
+    sway_tau_s: float = 1.0
     noise_scale: float = 4.0          # a feature's error persists over its keyframe's frames: count each ~1/16
     level_memory_s: float = 2.0       # how long the pitch and bounce the tracks show are remembered
     warm_up_s: float = 0.5            # ...and how long they are learned before they correct the distance
@@ -88,7 +94,6 @@ class NullPose:
         return None
 
 
-PITCH, HEIGHT, K_PITCH, K_HEIGHT = range(4)   # the state: this frame's pose, the keyframe's
 
 
 class PoseEstimator:
@@ -102,17 +107,20 @@ class PoseEstimator:
         self._offset = np.array(roi[:2], np.float64)
         self.tilt = (AutoTilt(camera, projection, roi, self.p.tilt) if self.p.auto_tilt
                      else FixedTilt(camera, projection, roi))
-        self._limit = (math.radians(self.p.pitch_sigma_deg), self.p.bounce_sigma_mm / 1000.0)
+        # a sway is only seen on the cylinder: to a plane it is a shift along the arc
+        sway = self.p.sway_sigma_mm / 1000.0 if projection.name == "cylinder" else 0.0
+        self._limit = (math.radians(self.p.pitch_sigma_deg), self.p.bounce_sigma_mm / 1000.0, sway)
         self._sig = list(self._limit)              # the levels the tracks show, at most the configured
-        self._level = [[0.0, 0.0], [0.0, 0.0]]     # running sums: excess square, expected per unit variance
-        self._tau = (self.p.pitch_tau_s, self.p.bounce_tau_s)
+        self._level = [[0.0] * N_POSE, [0.0] * N_POSE]   # running sums: excess square, expected per unit variance
+        self._tau = (self.p.pitch_tau_s, self.p.bounce_tau_s, self.p.sway_tau_s)
         self._keep = [lim > 0 for lim in self._limit] * 2   # not estimated at all: held at zero
+        self._kept = [i for i in range(N_POSE) if self._keep[i]]
         self._decay = (None,)                      # (dt, its decay of s and P, of the variances)
         self._forget()
         self._t = None
         self._warm_until = None                    # the first measured frame's time + warm_up_s
         self._serial = 0
-        self._end = None                           # the last measured frame's d(step)/d(pitch, height)
+        self._end = None                           # the last measured frame's d(step)/d(pitch, height, sway)
         self._closing = None                       # ...when that frame is the keyframe now
 
     @property
@@ -130,9 +138,9 @@ class PoseEstimator:
         continuous = self._t is None or t_s == self._t    # the run's first, or on the frame just measured
         self._closing = self._end if continuous else None
         self._predict(t_s)
-        self.s[2:] = self.s[:2]
-        self.P[2:, :] = self.P[:2, :]
-        self.P[:, 2:] = self.P[:, :2]
+        self.s[N_POSE:] = self.s[:N_POSE]
+        self.P[N_POSE:, :] = self.P[:N_POSE, :]
+        self.P[:, N_POSE:] = self.P[:, :N_POSE]
         self.tilt.closed(continuous, t_s)
 
     def measure(self, kf, c, t_s) -> PoseFix:
@@ -156,15 +164,15 @@ class PoseEstimator:
             xy, base = None, 0.0
         rescaled = base
         jc = self.tilt.field.at_roi(c.pts)
-        hh, hz, means = self._information(kf.pose[0].take(idx, 0), jc, moved, self.tilt.tau)
+        hh, hz, zz, means = self._information(kf.pose[0].take(idx, 0), jc, moved, self.tilt.tau)
         if self._warm_until is None:
             self._warm_until = t_s + self.p.warm_up_s
         if any(self._limit):                       # pitch or height estimated at all
-            base += self._filter(hh, hz, c.sigma, t_s - kf.t_s, learn_only=t_s < self._warm_until)
+            base += self._filter(hh, hz, zz, c.sigma, 2 * len(idx), t_s - kf.t_s, learn_only=t_s < self._warm_until)
         step, lat, sens = self._correction(means, self.tilt.tau)
         if self.tilt.auto:
             self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
-                                 tuple(self.s), float(moved[1].mean()) + step, sens))
+                                 tuple(self.s.take(_TILT_POSE)), float(moved[1].mean()) + step, sens))
         old = self.projection
         remount, extra = self.tilt.remount()
         if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
@@ -215,25 +223,24 @@ class PoseEstimator:
 
     # -- the filter -------------------------------------------------------------------------------
 
-    def _filter(self, hh, hz, sigma, since_kf, learn_only=False) -> float:
+    def _filter(self, hh, hz, zz, sigma, rows, since_kf, learn_only=False) -> float:
         """This frame's tracks (the model's information H'H, H'z) into the pitch and height: the
         metres the keyframe's better known pose gives the step before it. While the levels are
         still the prior's (learn_only, warm_up_s) the state stays at zero: nothing is corrected,
         and the estimate begins later as from a fresh start, with the levels the tracks showed."""
-        self._learn_levels(hh, hz, sigma, since_kf)
+        sigma = self._learn_levels(hh, hz, zz, rows, since_kf) or sigma
         if learn_only:
             return 0.0
         var = self._noise_var(sigma)
-        before = self.s[2:].tolist()
+        before = self.s[N_POSE:].tolist()
         self._update(hh / var, hz / var)
-        after = self.s[2:].tolist()
-        return self._refined((after[0] - before[0], after[1] - before[1]))
+        return self._refined([a - b for a, b in zip(self.s[N_POSE:].tolist(), before)])
 
     def _forget(self):
         """Back to the prior: no pitch or height known."""
-        a, b = self._sig[0] ** 2, self._sig[1] ** 2
-        self.s = np.zeros(4)
-        self.P = np.array([[a, 0.0, a, 0.0], [0.0, b, 0.0, b], [a, 0.0, a, 0.0], [0.0, b, 0.0, b]])
+        d = np.diag(np.square(self._sig))
+        self.s = np.zeros(2 * N_POSE)
+        self.P = np.block([[d, d], [d, d]])
 
     def _predict(self, t_s):
         dt = 0.0 if self._t is None else max(t_s - self._t, 0.0)
@@ -241,39 +248,44 @@ class PoseEstimator:
         if dt == 0.0:
             return
         if dt != self._decay[0]:                   # a camera's frame interval repeats: its decay too
-            p0, p1 = math.exp(-dt / self._tau[0]), math.exp(-dt / self._tau[1])
-            phi = np.array([p0, p1, 1.0, 1.0])
-            self._decay = (dt, phi, np.outer(phi, phi), 1 - p0 * p0, 1 - p1 * p1)
-        _, phi, phi2, q0, q1 = self._decay
+            rho = [math.exp(-dt / tau) for tau in self._tau]
+            phi = np.array(rho + [1.0] * N_POSE)
+            self._decay = (dt, phi, np.outer(phi, phi), [1 - r * r for r in rho])
+        _, phi, phi2, q = self._decay
         self.s *= phi
         self.P *= phi2
-        flat, sig = self.P.reshape(-1), self._sig
-        flat[0] += sig[0] * sig[0] * q0            # P[PITCH, PITCH]
-        flat[5] += sig[1] * sig[1] * q1            # P[HEIGHT, HEIGHT]
+        flat = self.P.reshape(-1)
+        for at, sig, qi in zip(_DIAG, self._sig, q):    # P[i, i] of this frame's pose
+            flat[at] += sig * sig * qi
 
-    def _learn_levels(self, hh, hz, sigma, since_kf):
+    def _learn_levels(self, hh, hz, zz, rows, since_kf) -> float | None:
         """How much the car really pitches and bounces, from this frame's own (prior-free) reading of
         its pose against the keyframe's: its square, less what its noise alone would give, against
         what an AR(1) level of unit variance would give over this interval. A smooth run then gets no
         pitch or height it does not show (each would add its noise to every step), a shaky one up to
-        the configured level."""
-        (a00, a01), (_, a11) = hh[:2, :2].tolist()
-        g0, g1 = hz[:2].tolist()
-        det = a00 * a11 - a01 * a01
-        if not det or not math.isfinite(det):
-            return
-        var = max(sigma, 1e-9) ** 2 / det           # the prior-free reading and its covariance
-        d = ((a11 * g0 - a01 * g1) / det, (a00 * g1 - a01 * g0) / det)
-        cov = (a11 * var, a00 * var)
-        keep = math.exp(-1.0 / (30.0 * self.p.level_memory_s))      # per frame, at ~30 fps
+        the configured level. Returns the features' noise: their scatter about that reading (the
+        consensus's spread holds the pose's own pattern, and as noise it hid the pitch: none None)."""
+        k = self._kept
+        dof = rows - 2 - len(k)                    # less the axial and lateral means
+        solved = least_squares(hh, hz, k) if k and dof > 0 else None
+        if solved is None:
+            return None
+        read, diag, explained = solved
+        sigma = math.sqrt(max(zz - explained, 0.0) / dof)
+        var = max(sigma, 1e-9) ** 2
+        d, cov = [0.0] * N_POSE, [0.0] * N_POSE     # the prior-free reading and its covariance
+        for j, i in enumerate(k):
+            d[i], cov[i] = read[j], diag[j] * var
+        memory = math.exp(-1.0 / (30.0 * self.p.level_memory_s))    # per frame, at ~30 fps
         since = max(since_kf, 0.0)
         (e, u), sig = self._level, []
         for i, tau in enumerate(self._tau):
-            e[i] = e[i] * keep + d[i] * d[i] - cov[i]
-            u[i] = u[i] * keep + 2.0 * (1.0 - math.exp(-since / tau))
+            e[i] = e[i] * memory + d[i] * d[i] - cov[i]
+            u[i] = u[i] * memory + 2.0 * (1.0 - math.exp(-since / tau))
             level = e[i] / u[i] if u[i] > 0 else 0.0
             sig.append(min(self._limit[i], math.sqrt(max(level, 0.0))))
         self._sig = sig
+        return sigma
 
     def _information(self, jk, jc, moved, tau):
         """H'H and H'z of the linear model z = H s of the centred displacements, and the means of
@@ -281,17 +293,16 @@ class PoseEstimator:
         pitch moves its wall position differently, so the keyframe's pitch has a pattern of its
         own; its height counts only as the shift it explains (the level of the height is not
         observable). Each row of H and z is a fixed combination of a feature's (jc, jk, moved)
-        (_MODEL), so all of it is one product and one Gram matrix: on the Pi the cost is the
+        (posemodel.MODEL), so all of it is one product and one Gram matrix: on the Pi the cost is the
         number of numpy calls, not the arithmetic."""
-        a = _MODEL[0] + float(self.s[K_HEIGHT]) * _MODEL[2]
-        if tau:
-            a += tau * _MODEL[1]
-        y = np.concatenate([jc, jk, moved.T], axis=1).dot(a)    # (n, 10): axial H, z | lateral H, z
+        a = np.dot((1.0, tau, float(self.s[K_HEIGHT])), MODEL_FLAT).reshape(MODEL.shape[1:])
+        y = np.concatenate([jc, jk, moved.T], axis=1).dot(a)    # (n, 14): axial H, z | lateral H, z
         mean = np.add.reduce(y, 0) * (1.0 / len(y))
         y -= mean
-        y = y.reshape(-1, 5)                       # each feature's axial row, then its lateral row
+        y = y.reshape(-1, 2 * N_POSE + 1)          # each feature's axial row, then its lateral row
         g = y.T.dot(y)
-        return g[:4, :4], g[:4, 4], mean.tolist()
+        n = 2 * N_POSE
+        return g[:n, :n], g[:n, n], float(g[n, n]), mean.tolist()
 
     def _update(self, info, eta):
         """The Kalman update in information form, P' = (I + P info)^-1 P; a pose the prior holds at
@@ -314,7 +325,8 @@ class PoseEstimator:
             self.s[keep], self.P[k] = s_new, p_new
 
     def _noise_var(self, sigma):
-        """The per-feature noise: the consensus's spread, persistent errors counted in (noise_scale)."""
+        """The per-feature noise: their scatter about the pose read (_learn_levels), persistent errors
+        counted in (noise_scale)."""
         floor = 0.05 * self.projection.mount.height_m / self.camera.fy     # 0.05 px: never tighter
         return (max(sigma, floor) * self.p.noise_scale) ** 2
 
@@ -324,38 +336,24 @@ class PoseEstimator:
         """The keyframe's pose, better known now, also ends the step before it: that step again."""
         if self._closing is None:
             return 0.0
-        return -float(self._closing[0] * change[0] + self._closing[1] * change[1])
+        return -sum(j * c for j, c in zip(self._closing, change))
 
     def _correction(self, means, tau):
         """Metres to add to the step and the lateral step, and d step/d tilt. Tilt and pitch count
         where each feature was and is; the height only as this frame's less the keyframe's (the
         scale it causes): its level is not observable, and a level that wandered would scale every
         step (docs/odometry.md, "Pose")."""
-        m = means                                  # of H's columns: axial jc1, jc3, -jk1; lateral jc0, jc2, -jk0
-        mc, mk = (m[5], m[0], m[6], m[1]), (-m[7], -m[2])
-        self._end = (mc[1], mc[3])
-        pc, hc, pk, hk = self.s.tolist()
+        m = means       # of H's columns: axial jc1, jc3, jc5, -jk1, -jc3, -jk5, z | lateral jc0, jc2, jc4, -jk0, ...
+        mc, mk = (m[7], m[0], m[8], m[1]), (-m[10], -m[3])
+        xc, xk = m[2], -m[5]                       # dy/dsway where the features are and were
+        self._end = (mc[1], mc[3], xc)
+        pc, hc, sc, pk, hk, sk = self.s.tolist()
         dh = hc - hk
-        step = (mk[1] - mc[1]) * tau + mk[1] * pk - mc[1] * pc - mc[3] * dh
+        step = (mk[1] - mc[1]) * tau + mk[1] * pk - mc[1] * pc - mc[3] * dh + xk * sk - xc * sc
         lat = (mc[0] - mk[0]) * tau + mc[0] * pc - mk[0] * pk + mc[2] * dh
         return step, lat, mk[1] - mc[1]
 
 
-def _model_maps() -> np.ndarray:
-    """(3, 10, 10): how each row of H and z (axial: columns 0-4, lateral: 5-9; H's four, then z)
-    combines a feature's (jc 0-3, jk 4-7, moved lateral 8, axial 9), as base + tau * [1] +
-    keyframe height * [2]. COLUMNS: 0 ds/dtilt, 1 dy/dtilt, 2 ds/dheight, 3 dy/dheight."""
-    m = np.zeros((3, 10, 10))
-    for off, (tilt, height, moved, sign) in ((0, (1, 3, 9, 1.0)), (5, (0, 2, 8, -1.0))):
-        m[0, tilt, off + PITCH] = 1.0              # this frame's pitch: its field where it is
-        m[0, height, off + HEIGHT] = 1.0
-        m[0, 4 + tilt, off + K_PITCH] = -1.0       # the keyframe's: where it was
-        m[0, height, off + K_HEIGHT] = -1.0        # a height counts only as a change
-        m[0, moved, off + 4] = sign                # z: the displacement less tilt and keyframe height
-        m[1, tilt, off + 4], m[1, 4 + tilt, off + 4] = -1.0, 1.0
-        m[2, height, off + 4], m[2, 4 + height, off + 4] = -1.0, 1.0
-    return m
-
-
-_MODEL = _model_maps()
-_EYE = [np.eye(n) for n in range(5)]
+_EYE = [np.eye(n) for n in range(2 * N_POSE + 1)]
+_DIAG = [i * (2 * N_POSE + 1) for i in range(N_POSE)]   # P's flat indices of this frame's variances
+_TILT_POSE = [PITCH, HEIGHT, K_PITCH, K_HEIGHT]         # what tilt auto's re-measure corrects for
