@@ -259,12 +259,13 @@ class PoseEstimator:
             flat[at] += sig * sig * qi
 
     def _learn_levels(self, hh, hz, zz, rows, since_kf) -> float | None:
-        """How much the car really pitches and bounces, from this frame's own (prior-free) reading of
-        its pose against the keyframe's: its square, less what its noise alone would give, against
-        what an AR(1) level of unit variance would give over this interval. A smooth run then gets no
-        pitch or height it does not show (each would add its noise to every step), a shaky one up to
-        the configured level. Returns the features' noise: their scatter about that reading (the
-        consensus's spread holds the pose's own pattern, and as noise it hid the pitch: none None)."""
+        """How much the car really pitches, bounces and sways, from this frame's own (prior-free)
+        reading of its pose against the keyframe's: its square, less what its noise alone would
+        give, against what an AR(1) level of unit variance would give over this interval. A smooth
+        run then gets no pitch or height it does not show (each would add its noise to every step),
+        a shaky one up to the configured level. Returns the features' noise, their scatter about
+        that reading (the consensus's spread holds the pose's own pattern: as noise it hid the
+        pitch), or None where the reading cannot be had."""
         k = self._kept
         dof = rows - 2 - len(k)                    # less the axial and lateral means
         solved = least_squares(hh, hz, k) if k and dof > 0 else None
