@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from .flow import encoder_copy
+
 
 @dataclass(frozen=True)
 class DenseParams:
@@ -90,8 +92,7 @@ class DenseShift:
         # a low-contrast wall is copied unchanged from frame to frame by the video encoder: such a
         # frame says nothing about the motion (not even that there was none). A faint wall that
         # moves still changes most pixels a little (a copied block changes none)
-        frozen = (self._prev_small is not None
-                  and cv2.countNonZero(cv2.absdiff(small8, self._prev_small)) < self.p.min_changed * small8.size)
+        frozen = self._prev_small is not None and encoder_copy(small8, self._prev_small, self.p.min_changed)
         self._prev_small = small8
         small = small8.astype(np.float32)
         if self._mean is None:

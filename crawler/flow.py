@@ -106,6 +106,12 @@ def texture_energy(img: np.ndarray) -> float:
     return float(cv2.mean(cv2.absdiff(rows[:, 1:], rows[:, :-1]))[0])
 
 
+def encoder_copy(img: np.ndarray, prev: np.ndarray, min_changed: float) -> bool:
+    """Fewer than min_changed of the pixels changed at all since prev: a frame the video encoder
+    copied. A camera's own frames always differ by their noise."""
+    return cv2.countNonZero(cv2.absdiff(img, prev)) < min_changed * img.size
+
+
 def coarse_shift(prev: np.ndarray, cur: np.ndarray, window: np.ndarray, scale: float):
     """Global image shift prev -> cur by phase correlation: ((dx, dy) in full-res px, response)."""
     (dx, dy), response = cv2.phaseCorrelate(prev, cur, window)

@@ -22,6 +22,7 @@ from collections import deque
 import cv2
 
 from .consensus import median
+from .flow import encoder_copy
 
 
 def reacquired(c, n_visible: int, p, m_per_px: float) -> bool:
@@ -57,7 +58,7 @@ class FrameGates:
         self._rows = rows.copy() if in_gap else None
         if not in_gap or prev is None or prev.shape != rows.shape:
             return False
-        return cv2.countNonZero(cv2.absdiff(rows, prev)) < self.p.dense.min_changed * rows.size
+        return encoder_copy(rows, prev, self.p.dense.min_changed)
 
     def remember(self, roi, energy: float):
         """A measured frame: what the lit, textured wall looks like lately (the light, which
