@@ -75,7 +75,7 @@ def check_geometry(settings: Settings, camera: Camera, roi) -> float:
 def pose_params(settings: Settings) -> PoseParams | None:
     """What the pose estimator assumes of the car, or None when nothing is estimated."""
     o, auto = settings.odometry, settings.mount.tilt_auto
-    # unset: pitch and height with a configured tilt; with tilt "auto" alone none, as read at a tilt
+    # unset: pitch, height and sway with a configured tilt; with tilt "auto" alone none, as read at a tilt
     # not yet found they take up its error
     on = o.estimate_pose if o.estimate_pose is not None else not auto and o.method != "pixel"
     if not (auto or on):

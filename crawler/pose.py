@@ -94,10 +94,8 @@ class NullPose:
         return None
 
 
-
-
 class PoseEstimator:
-    """Tilt, pitch and height of the camera, from the odometer's keyframe features and their tracks."""
+    """Tilt, pitch, height and sway of the camera, from the odometer's keyframe features and their tracks."""
 
     active = True
 
@@ -167,7 +165,7 @@ class PoseEstimator:
         hh, hz, zz, means = self._information(kf.pose[0].take(idx, 0), jc, moved, self.tilt.tau)
         if self._warm_until is None:
             self._warm_until = t_s + self.p.warm_up_s
-        if any(self._limit):                       # pitch or height estimated at all
+        if any(self._limit):                       # pitch, height or sway estimated at all
             base += self._filter(hh, hz, zz, c.sigma, 2 * len(idx), t_s - kf.t_s, learn_only=t_s < self._warm_until)
         step, lat, sens = self._correction(means, self.tilt.tau)
         if self.tilt.auto:
@@ -237,7 +235,7 @@ class PoseEstimator:
         return self._refined([a - b for a, b in zip(self.s[N_POSE:].tolist(), before)])
 
     def _forget(self):
-        """Back to the prior: no pitch or height known."""
+        """Back to the prior: no pitch, height or sway known."""
         d = np.diag(np.square(self._sig))
         self.s = np.zeros(2 * N_POSE)
         self.P = np.block([[d, d], [d, d]])
@@ -308,11 +306,11 @@ class PoseEstimator:
     def _update(self, info, eta):
         """The Kalman update in information form, P' = (I + P info)^-1 P; a pose the prior holds at
         zero variance (not estimated) stays at zero. (cv2.solve: a quarter of numpy.linalg's cost
-        on the Pi for a 4x4.)"""
+        on the Pi for these small matrices.)"""
         keep = self._keep
         if not any(keep):
             return
-        full = all(keep)                           # both estimated: no sub-matrices to cut
+        full = all(keep)                           # all estimated: no sub-matrices to cut
         k = None if full else np.ix_(keep, keep)
         p, s, info, eta = (self.P, self.s, info, eta) if full else (self.P[k], self.s[keep], info[k], eta[keep])
         ok, p_new = cv2.solve(_EYE[len(p)] + p.dot(info), p, flags=cv2.DECOMP_LU)

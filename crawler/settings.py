@@ -112,7 +112,7 @@ class OdometrySettings:
     pitch_jitter_deg: float = _f(0.25, between(0, 10))    # the car's pitching: part of sigma_m; the pose prior
     bounce_mm: float = _f(1.0, between(0, 50))            # the suspension's bounce: the pose prior
     sway_mm: float = _f(2.0, between(0, 50))              # the car's weave across the pipe: the pose prior
-    estimate_pose: bool | None = _f(None)   # per-frame pitch and height (crawler/pose.py); unset: with a
+    estimate_pose: bool | None = _f(None)   # per-frame pitch, height, sway (crawler/pose.py); unset: with a
                                             # configured tilt, not with tilt "auto" (docs/odometry.md, "Pose")
     workers: int = _f(1, between(1, 16))    # processes that share a frame's work (crawler/workers.py)
 
