@@ -1,6 +1,6 @@
 """The camera's pose from the flow (issue 14): tilt auto, a tilt step, shake runs. Prints figures.
 
-    python benchmarks/pose.py [--out DIR] [--jobs N] [--only tilt,table,step,shake,fixed] [--markdown]
+    python benchmarks/pose.py [--out DIR] [--jobs N] [--only tilt,table,step,shake,ride,fixed] [--markdown]
 
 Every case is an hw_sim recording (cached in --out, with the true tilt and camera height per frame
 in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
@@ -12,6 +12,8 @@ in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
 - shake: suspension bounce, pitch jitter, roll and sway at several tilts and speeds: configured
          tilt with the pose estimator on (shake) and off (shake-off, the default), and tilt auto: final error and the worst deviation from the
          true trajectory mid-run, in % of the path (and of the path so far, after its first 0.2 m);
+- ride:  the shake runs (the sediment among them) and the table with the ride height's level on
+         (`[odometry] ride_height = true`, opt-in);
 - fixed: benchmarks/accuracy.py's cases with the configured tilt, pose estimator on (fixed) and off
          (fixed-off: the default, benchmarks/accuracy.py's cylinder column).
 
@@ -35,6 +37,7 @@ SHAKE = dict(bounce_mm=1.0, pitch_jitter_deg=0.3, roll_deg=3.0, sway_mm=2.0)
 BIG_SHAKE = dict(bounce_mm=2.0, pitch_jitter_deg=0.6, pitch_jitter_hz=1.5, bounce_hz=2.5, roll_deg=3.0, sway_mm=3.0)
 ON = ["odometry.estimate_pose=true"]      # pitch and height per frame (the default with a configured tilt)
 OFF = ["odometry.estimate_pose=false"]
+RIDE = "odometry.ride_height=true"             # the ride height over sediment (opt-in)
 
 TILT_CASES = {f"still-{t}deg-{v}": dict(tilt_deg=t, speed_m_s=v, duration_s=d, seed=30 + t)
               for t in (0, 24, 40) for v, d in ((0.04, 12), (0.3, 6))}
@@ -138,6 +141,10 @@ def jobs(out: Path, only: set) -> list:
             tilt = f"mount.tilt_deg={f['tilt_deg']}"
             todo += [(out, "shake", n, f, [tilt, *ON]), (out, "shake-off", n, f, [tilt, *OFF]),
                      (out, "shake-auto", n, f, ["mount.tilt_deg=auto"])]
+    if "ride" in only:                             # [odometry] ride_height = true (opt-in): shake runs, then the table
+        todo += [(out, "ride", n, f, [f"mount.tilt_deg={f['tilt_deg']}", *ON, RIDE]) for n, f in SHAKE_CASES.items()]
+        todo += [(out, "ride", n, f, [f"mount.tilt_deg={f.get('tilt_deg', 0)}", *x, *ON, RIDE])
+                 for n, (f, x) in CASES.items()]
     if "fixed" in only:
         todo += [(out, "fixed", n, f, [f"mount.tilt_deg={f.get('tilt_deg', 0)}", *x, *ON])
                  for n, (f, x) in CASES.items()]
@@ -179,7 +186,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "out" / "pose"), help="where rendered runs are cached")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--only", default="tilt,table,step,shake,fixed")
+    ap.add_argument("--only", default="tilt,table,step,shake,ride,fixed")
     ap.add_argument("--cases", help="comma-separated subset of the case names")
     ap.add_argument("--markdown", action="store_true")
     args = ap.parse_args(argv)

@@ -34,7 +34,8 @@ import numpy as np
 
 from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop, far_apart
 from .estimate import finite_round
-from .posemodel import HEIGHT, K_HEIGHT, K_PITCH, MODEL, MODEL_FLAT, N_POSE, PITCH, least_squares
+from .ride import RideHeight
+from .posemodel import HEIGHT, K_HEIGHT, K_PITCH, K_SWAY, MODEL, MODEL_FLAT, N_POSE, PITCH, SWAY, least_squares
 
 
 @dataclass(frozen=True)
@@ -46,6 +47,7 @@ class PoseParams:
     bounce_tau_s: float = 0.3
     sway_sigma_mm: float = 2.0        # the car's weave across the pipe ([odometry] sway_mm); 0: not estimated
     sway_tau_s: float = 1.0
+    ride_height: bool = False         # the ride height's level from the height changes ([odometry] ride_height)
     noise_scale: float = 4.0          # a feature's error persists over its keyframe's frames: count each ~1/16
     level_memory_s: float = 2.0       # how long the pitch and bounce the tracks show are remembered
     warm_up_s: float = 0.5            # ...and how long they are learned before they correct the distance
@@ -120,6 +122,9 @@ class PoseEstimator:
         self._serial = 0
         self._end = None                           # the last measured frame's d(step)/d(pitch, height, sway)
         self._closing = None                       # ...when that frame is the keyframe now
+        self.ride = RideHeight(projection.mount.height_m) if self.p.ride_height else None
+        self._read_dh = None                       # the last measured frame's height change read (m, var)
+        self._kf_at = None                         # the last keyframe's (distance, time)
 
     @property
     def projection(self):
@@ -135,6 +140,12 @@ class PoseEstimator:
         kf.pose = (self.tilt.field.at_roi(kf.pts), xy, self._serial)
         continuous = self._t is None or t_s == self._t    # the run's first, or on the frame just measured
         self._closing = self._end if continuous else None
+        if self.ride and continuous and self._read_dh is not None and self._kf_at is not None:
+            change = self._height_change(*self._read_dh)
+            if change is not None:
+                self.ride.handover(*change, kf.distance - self._kf_at[0], t_s - self._kf_at[1],
+                                   self._sig[HEIGHT], self.p.bounce_tau_s)
+        self._read_dh, self._kf_at = None, (kf.distance, t_s)
         self._predict(t_s)
         self.s[N_POSE:] = self.s[:N_POSE]
         self.P[N_POSE:, :] = self.P[:N_POSE, :]
@@ -168,6 +179,10 @@ class PoseEstimator:
         if any(self._limit):                       # pitch, height or sway estimated at all
             base += self._filter(hh, hz, zz, c.sigma, 2 * len(idx), t_s - kf.t_s, learn_only=t_s < self._warm_until)
         step, lat, sens = self._correction(means, self.tilt.tau)
+        if self.ride and self.ride.level_m:        # a ride height scales the whole step
+            scale = self.ride.level_m / self.projection.mount.height_m
+            step, lat = step + (c.step + step) * scale, lat + (c.lat + lat) * scale
+            base, self.ride.catch_up_m = base + self.ride.catch_up_m, 0.0
         if self.tilt.auto:
             self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
                                  tuple(self.s.take(_TILT_POSE)), float(moved[1].mean()) + step, sens))
@@ -217,6 +232,8 @@ class PoseEstimator:
 
     @property
     def height_m(self) -> float:
+        if self.ride:                              # the ride's level at the keyframe, and the change since
+            return self.projection.mount.height_m + self.ride.level_m + float(self.s[HEIGHT] - self.s[K_HEIGHT])
         return self.projection.mount.height_m + float(self.s[HEIGHT])
 
     # -- the filter -------------------------------------------------------------------------------
@@ -284,7 +301,23 @@ class PoseEstimator:
             level = e[i] / u[i] if u[i] > 0 else 0.0
             sig.append(min(self._limit[i], math.sqrt(max(level, 0.0))))
         self._sig = sig
+        if self.ride:
+            self._read_dh = (hh, hz, zz, rows)
         return sigma
+
+    def _height_change(self, hh, hz, zz, rows):
+        """The closing frame's height change against its keyframe, prior-free, with the keyframe's
+        pitch and sway read too (m, variance) or None: a tilt that is off shows as the same pitch of
+        both frames, which a reading without the keyframe's would take partly as a height change,
+        each keyframe alike (2 deg: 0.7 mm per keyframe, the ride height run away)."""
+        k = [i for i in _RIDE_READ if self._keep[i]]
+        dof = rows - 2 - len(k)
+        solved = least_squares(hh, hz, k) if dof > 0 else None
+        if solved is None:
+            return None
+        read, diag, explained = solved
+        j = k.index(HEIGHT)
+        return read[j], diag[j] * max(zz - explained, 0.0) / dof
 
     def _information(self, jk, jc, moved, tau):
         """H'H and H'z of the linear model z = H s of the centred displacements, and the means of
@@ -355,4 +388,5 @@ class PoseEstimator:
 
 _EYE = [np.eye(n) for n in range(2 * N_POSE + 1)]
 _DIAG = [i * (2 * N_POSE + 1) for i in range(N_POSE)]   # P's flat indices of this frame's variances
+_RIDE_READ = [PITCH, HEIGHT, SWAY, K_PITCH, K_SWAY]     # the height change read with all but the keyframe's height
 _TILT_POSE = [PITCH, HEIGHT, K_PITCH, K_HEIGHT]         # what tilt auto's re-measure corrects for

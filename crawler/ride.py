@@ -1,0 +1,79 @@
+"""The car's ride height: how much higher than the mount it rides over sediment or debris. Pure: no I/O.
+
+The flow shows a height only as a change: a camera that rises zooms the image against its keyframe
+(crawler/pose.py reads that change to ~0.1 mm per keyframe). Its level does not show in one frame
+(on the cylinder the curvature the ROI sees makes 1 mm of level a 0.0004 px pattern), but it
+scales every metre: 15 mm of sediment under a 226 mm camera reads 6.6 % long. The level is the sum
+of the changes, one per keyframe (the chain), with two limits the physics sets:
+
+- the chain also sums each change's reading error, a random walk of ~0.6 mm per sqrt(m): it is
+  remembered over `memory_m` of travel only, and a level is applied only once the chain, smoothed
+  over `window_m` against the bounce, stands `k_sigma` of its own noise (the walk and the bounce
+  that is left) off the mount. Below that a smooth run gets no level, so nothing of the walk;
+- a level that is gone again (the chain back within half the threshold) is let go, and none is
+  applied while that noise is above `max_sigma` of the height (heavy compression, shake: their
+  readings are biased beyond their scatter, and the chain would run away with them).
+
+Opt-in (`[odometry] ride_height`): a configured tilt more than ~2 deg off, or a wall that tracks
+badly, biases every reading alike, and the chain sums them.
+
+docs/odometry.md, "Ride height", has the figures.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class RideParams:
+    memory_m: float = 5.0       # a ride height is remembered over this much travel ([odometry] ride_memory_m)
+    window_m: float = 0.03       # the chain is smoothed over this much travel: the bounce averages out
+    k_sigma: float = 4.0        # a level is applied once it stands this many of its sigma off the mount
+    max_sigma: float = 0.01     # ...and only while that sigma is within this share of the height
+
+
+class RideHeight:
+    """The camera's ride height against the mount, from the height changes at keyframe handovers."""
+
+    def __init__(self, height_m: float, params: RideParams | None = None):
+        self.p = params or RideParams()
+        self.height_m = height_m
+        self.chain = 0.0          # the summed changes (metres of height below the crown; - : higher)
+        self.chain_var = 0.0      # ...and the variance of their summed reading errors
+        self.smooth = 0.0         # the chain, smoothed over window_m
+        self.level_m = 0.0        # the applied level: 0 until it is significant
+        self.sigma_m = 0.0        # the smoothed chain's noise when no level is there
+        self._owed = 0.0          # metres the smoothed level would have added while it was not yet sure
+        self.catch_up_m = 0.0     # ...added once when it becomes sure (the odometer takes it and zeroes it)
+
+    def handover(self, change_m: float, var_m2: float, moved_m: float, dt_s: float,
+                 bounce_m: float, bounce_tau_s: float) -> float:
+        """One keyframe's height change against the last one (reading and its variance), over
+        moved_m of travel and dt_s; bounce_m, bounce_tau_s: the bounce the tracks show. Returns
+        the level to apply from now on (metres added to the mount's height)."""
+        moved = abs(moved_m)
+        if not (math.isfinite(change_m) and math.isfinite(var_m2)) or moved <= 0.0:
+            return self.level_m
+        keep = 1.0 if self.level_m else math.exp(-moved / self.p.memory_m)   # a bank found is held
+        self.chain = keep * self.chain + change_m
+        self.chain_var = keep * keep * self.chain_var + var_m2
+        a = min(1.0, moved / self.p.window_m)
+        self.smooth += a * (self.chain - self.smooth)
+        window_s = dt_s * self.p.window_m / moved        # the window in time at this speed
+        left = bounce_m * bounce_m * bounce_tau_s / (bounce_tau_s + window_s)   # the bounce a low-pass leaves
+        self.sigma_m = math.sqrt(self.chain_var + left)
+        threshold = self.p.k_sigma * self.sigma_m
+        sure = self.sigma_m <= self.p.max_sigma * self.height_m
+        was = self.level_m
+        if sure and (abs(self.smooth) > threshold or (was and abs(self.smooth) > 0.5 * threshold)):
+            self.level_m = self.smooth
+        else:
+            self.level_m = 0.0
+        if not was:                                # the keyframe just closed, at the level the chain says now
+            self._owed = self._owed + self.smooth * moved_m / self.height_m if abs(self.smooth) > self.sigma_m else 0.0
+            if self.level_m:                       # the bank's first metres, measured again
+                self.catch_up_m += self._owed
+                self._owed = 0.0
+        return self.level_m
