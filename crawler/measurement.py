@@ -78,6 +78,9 @@ def pose_params(settings: Settings) -> PoseParams | None:
     # unset: pitch, height and sway with a configured tilt; with tilt "auto" alone none, as read at a tilt
     # not yet found they take up its error
     on = o.estimate_pose if o.estimate_pose is not None else not auto and o.method != "pixel"
+    if o.ride_height and not on:
+        raise BadConfig("[odometry] ride_height = true sums the pose estimator's height changes: it needs a configured "
+                        "[mount] tilt_deg and [odometry] estimate_pose unset or true (or set ride_height = false)")
     if not (auto or on):
         return None
     if o.method == "pixel":

@@ -74,6 +74,10 @@ def test_estimate_pose_unset_means_with_a_configured_tilt_only():
     assert params("odometry.method='pixel'") is None                               # nothing to estimate
     with pytest.raises(BadConfig, match="estimate_pose = true needs"):
         params("odometry.method='pixel'", "odometry.estimate_pose=true")
+    assert params("odometry.ride_height=true").ride_height and not params().ride_height    # opt-in
+    for without in ("odometry.estimate_pose=false", "mount.tilt_deg='auto'", "odometry.method='pixel'"):
+        with pytest.raises(BadConfig, match="ride_height = true sums the pose estimator's height changes"):
+            params("odometry.ride_height=true", without)
 
 
 def test_status_carries_the_tilt_and_its_sigma_finite(render_run):
