@@ -171,6 +171,12 @@ class AutoTilt(FixedTilt):
         found = self.search.solve(lambda t, s: disagreement(kind(replace(m, tilt_rad=t)), *s, robust=True))
         self.track = TiltTrack(found, self.p.tilt, math.radians(self.p.found_sigma_deg))
         self.tau = found - m.tilt_rad
+        # the closed keyframes' samples read again as readings: the search's median spread finds the
+        # tilt where a track may be far off; the readings' variance, strays cut, is the sharper measure
+        for key, (_, sample) in self.search.samples.items():
+            if key != serial:
+                self.track.add(*self._reading(*sample), 0.0)
+                self.tau = self.track.value - m.tilt_rad
 
     def _read(self, t_s):
         """The finished keyframe's readings, averaged (its frames saw the car pitch and bounce in
