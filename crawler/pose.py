@@ -182,7 +182,6 @@ class PoseEstimator:
         if self.ride and self.ride.level_m:        # a ride height scales the whole step
             scale = self.ride.level_m / self.projection.mount.height_m
             step, lat = step + (c.step + step) * scale, lat + (c.lat + lat) * scale
-            base, self.ride.catch_up_m = base + self.ride.catch_up_m, 0.0
         if self.tilt.auto:
             self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
                                  tuple(self.s.take(_TILT_POSE)), float(moved[1].mean()) + step, sens))

@@ -14,8 +14,9 @@ of the changes, one per keyframe (the chain), with two limits the physics sets:
   applied while that noise is above `max_sigma` of the height (heavy compression, shake: their
   readings are biased beyond their scatter, and the chain would run away with them).
 
-Opt-in (`[odometry] ride_height`): a configured tilt more than ~2 deg off, or a wall that tracks
-badly, biases every reading alike, and the chain sums them.
+Opt-in (`[odometry] ride_height`): a configured tilt more than ~2 deg off, a wall that tracks badly,
+or a steep tilt (at 40 deg the features grow as they come nearer: 0.1-0.2 mm per keyframe) biases
+every reading alike, and the chain sums them.
 
 docs/odometry.md, "Ride height", has the figures.
 """
@@ -45,8 +46,6 @@ class RideHeight:
         self.smooth = 0.0         # the chain, smoothed over window_m
         self.level_m = 0.0        # the applied level: 0 until it is significant
         self.sigma_m = 0.0        # the smoothed chain's noise when no level is there
-        self._owed = 0.0          # metres the smoothed level would have added while it was not yet sure
-        self.catch_up_m = 0.0     # ...added once when it becomes sure (the odometer takes it and zeroes it)
 
     def handover(self, change_m: float, var_m2: float, moved_m: float, dt_s: float,
                  bounce_m: float, bounce_tau_s: float) -> float:
@@ -66,14 +65,8 @@ class RideHeight:
         self.sigma_m = math.sqrt(self.chain_var + left)
         threshold = self.p.k_sigma * self.sigma_m
         sure = self.sigma_m <= self.p.max_sigma * self.height_m
-        was = self.level_m
-        if sure and (abs(self.smooth) > threshold or (was and abs(self.smooth) > 0.5 * threshold)):
+        if sure and (abs(self.smooth) > threshold or (self.level_m and abs(self.smooth) > 0.5 * threshold)):
             self.level_m = self.smooth
         else:
             self.level_m = 0.0
-        if not was:                                # the keyframe just closed, at the level the chain says now
-            self._owed = self._owed + self.smooth * moved_m / self.height_m if abs(self.smooth) > self.sigma_m else 0.0
-            if self.level_m:                       # the bank's first metres, measured again
-                self.catch_up_m += self._owed
-                self._owed = 0.0
         return self.level_m
