@@ -1,6 +1,6 @@
 """The camera's pose from the flow (issue 14): tilt auto, a tilt step, shake runs. Prints figures.
 
-    python benchmarks/pose.py [--out DIR] [--jobs N] [--only tilt,table,step,shake,ride,fixed] [--markdown]
+    python benchmarks/pose.py [--out DIR] [--jobs N] [--only tilt,table,step,shake,ride,fixed,both] [--markdown]
 
 Every case is an hw_sim recording (cached in --out, with the true tilt and camera height per frame
 in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
@@ -12,6 +12,8 @@ in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
 - shake: suspension bounce, pitch jitter, roll and sway at several tilts and speeds: configured
          tilt with the pose estimator on (shake) and off (shake-off, the default), and tilt auto: final error and the worst deviation from the
          true trajectory mid-run, in % of the path (and of the path so far, after its first 0.2 m);
+- both:  tilt auto with the pose estimator on too (`estimate_pose = true`): the still, shake and
+         table runs (not in the default --only);
 - ride:  the shake runs (the sediment among them) and the table with the ride height's level on
          (`[odometry] ride_height = true`, opt-in);
 - fixed: benchmarks/accuracy.py's cases with the configured tilt, pose estimator on (fixed) and off
@@ -141,6 +143,10 @@ def jobs(out: Path, only: set) -> list:
             tilt = f"mount.tilt_deg={f['tilt_deg']}"
             todo += [(out, "shake", n, f, [tilt, *ON]), (out, "shake-off", n, f, [tilt, *OFF]),
                      (out, "shake-auto", n, f, ["mount.tilt_deg=auto"])]
+    if "both" in only:                             # tilt auto and the pose estimator together
+        both = ["mount.tilt_deg=auto", *ON]
+        todo += [(out, "both", n, f, both) for n, f in {**TILT_CASES, **SHAKE_CASES}.items()]
+        todo += [(out, "both", n, f, [*both, *x]) for n, (f, x) in CASES.items()]
     if "ride" in only:                             # [odometry] ride_height = true (opt-in): shake runs, then the table
         todo += [(out, "ride", n, f, [f"mount.tilt_deg={f['tilt_deg']}", *ON, RIDE]) for n, f in SHAKE_CASES.items()]
         todo += [(out, "ride", n, f, [f"mount.tilt_deg={f.get('tilt_deg', 0)}", *x, *ON, RIDE])

@@ -119,6 +119,7 @@ class PoseEstimator:
         self._forget()
         self._t = None
         self._warm_until = None                    # the first measured frame's time + warm_up_s
+        self._found = False                        # tilt auto: the tilt found (the search done)
         self._serial = 0
         self._end = None                           # the last measured frame's d(step)/d(pitch, height, sway)
         self._closing = None                       # ...when that frame is the keyframe now
@@ -174,10 +175,14 @@ class PoseEstimator:
         rescaled = base
         jc = self.tilt.field.at_roi(c.pts)
         hh, hz, zz, means = self._information(kf.pose[0].take(idx, 0), jc, moved, self.tilt.tau)
-        if self._warm_until is None:
+        found = not self.tilt.auto or self.tilt.track is not None     # read at a tilt not yet found, the
+        if self._warm_until is None or (found and not self._found):   # pose takes up its error: not till then
             self._warm_until = t_s + self.p.warm_up_s
+            self._relearn()
+        self._found = found
         if any(self._limit):                       # pitch, height or sway estimated at all
-            base += self._filter(hh, hz, zz, c.sigma, 2 * len(idx), t_s - kf.t_s, learn_only=t_s < self._warm_until)
+            base += self._filter(hh, hz, zz, c.sigma, 2 * len(idx), t_s - kf.t_s,
+                                 learn_only=t_s < self._warm_until or not found)
         step, lat, sens = self._correction(means, self.tilt.tau)
         if self.ride and self.ride.level_m:        # a ride height scales the whole step
             scale = self.ride.level_m / self.projection.mount.height_m
@@ -249,6 +254,12 @@ class PoseEstimator:
         before = self.s[N_POSE:].tolist()
         self._update(hh / var, hz / var)
         return self._refined([a - b for a, b in zip(self.s[N_POSE:].tolist(), before)])
+
+    def _relearn(self):
+        """A tilt just found: what was learnt at the tilt before, levels and state, is its error."""
+        self._sig = list(self._limit)
+        self._level = [[0.0] * N_POSE, [0.0] * N_POSE]
+        self._forget()
 
     def _forget(self):
         """Back to the prior: no pitch, height or sway known."""
