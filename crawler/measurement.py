@@ -75,8 +75,8 @@ def check_geometry(settings: Settings, camera: Camera, roi) -> float:
 def pose_params(settings: Settings) -> PoseParams | None:
     """What the pose estimator assumes of the car, or None when nothing is estimated."""
     o, auto = settings.odometry, settings.mount.tilt_auto
-    # unset: pitch, height and sway with a configured tilt; with tilt "auto" alone none, as read at a tilt
-    # not yet found they take up its error
+    # unset: pitch, height and sway with a configured tilt; with tilt "auto" alone none: on a shaking car
+    # the tilt's own error dominates, and both together measured worse (docs/accuracy.md, "Pose")
     on = o.estimate_pose if o.estimate_pose is not None else not auto and o.method != "pixel"
     if o.ride_height and not on:
         raise BadConfig("[odometry] ride_height = true sums the pose estimator's height changes: it needs a configured "
