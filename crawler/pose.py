@@ -34,8 +34,9 @@ import numpy as np
 
 from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop, far_apart
 from .estimate import finite_round
+from .posemodel import (HEIGHT, K_HEIGHT, K_PITCH, K_SWAY, MODEL, MODEL_FLAT, N_POSE, PITCH, SWAY, height_change,
+                        least_squares)
 from .ride import RideHeight
-from .posemodel import HEIGHT, K_HEIGHT, K_PITCH, K_SWAY, MODEL, MODEL_FLAT, N_POSE, PITCH, SWAY, least_squares
 
 
 @dataclass(frozen=True)
@@ -142,7 +143,7 @@ class PoseEstimator:
         continuous = self._t is None or t_s == self._t    # the run's first, or on the frame just measured
         self._closing = self._end if continuous else None
         if self.ride and continuous and self._read_dh is not None and self._kf_at is not None:
-            change = self._height_change(*self._read_dh)
+            change = height_change(*self._read_dh, [i for i in _RIDE_READ if self._keep[i]])
             if change is not None:
                 self.ride.handover(*change, kf.distance - self._kf_at[0], t_s - self._kf_at[1],
                                    self._sig[HEIGHT], self.p.bounce_tau_s)
@@ -314,20 +315,6 @@ class PoseEstimator:
         if self.ride:
             self._read_dh = (hh, hz, zz, rows)
         return sigma
-
-    def _height_change(self, hh, hz, zz, rows):
-        """The closing frame's height change against its keyframe, prior-free, with the keyframe's
-        pitch and sway read too (m, variance) or None: a tilt that is off shows as the same pitch of
-        both frames, which a reading without the keyframe's would take partly as a height change,
-        each keyframe alike (2 deg: 0.7 mm per keyframe, the ride height run away)."""
-        k = [i for i in _RIDE_READ if self._keep[i]]
-        dof = rows - 2 - len(k)
-        solved = least_squares(hh, hz, k) if dof > 0 else None
-        if solved is None:
-            return None
-        read, diag, explained = solved
-        j = k.index(HEIGHT)
-        return read[j], diag[j] * max(zz - explained, 0.0) / dof
 
     def _information(self, jk, jc, moved, tau):
         """H'H and H'z of the linear model z = H s of the centred displacements, and the means of

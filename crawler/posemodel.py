@@ -41,6 +41,20 @@ def least_squares(hh, hz, k):
     return read.tolist(), inv.diagonal().tolist(), explained
 
 
+def height_change(hh, hz, zz, rows, k):
+    """A frame's height change against its keyframe, prior-free, with the states k read too (m,
+    variance), or None. With the keyframe's pitch and sway among them: a tilt that is off shows as
+    the same pitch of both frames, which a reading without the keyframe's takes partly as a height
+    change, each keyframe alike (2 deg: 0.7 mm per keyframe; crawler/ride.py sums them)."""
+    dof = rows - 2 - len(k)
+    solved = least_squares(hh, hz, k) if dof > 0 and HEIGHT in k else None
+    if solved is None:
+        return None
+    read, diag, explained = solved
+    j = k.index(HEIGHT)
+    return read[j], diag[j] * max(zz - explained, 0.0) / dof
+
+
 def _model_maps() -> np.ndarray:
     """(3, 14, 14): how each row of H and z (axial: columns 0-6, lateral: 7-13; H's six, then z)
     combines a feature's (jc 0-5, jk 6-11, moved lateral 12, axial 13), as base + tau * [1] +
