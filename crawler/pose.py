@@ -125,7 +125,7 @@ class PoseEstimator:
         self._end = None                           # the last measured frame's d(step)/d(pitch, height, sway)
         self._closing = None                       # ...when that frame is the keyframe now
         self.ride = RideHeight(projection.mount.height_m) if self.p.ride_height else None
-        self._read_dh = None                       # the last measured frame's height change read (m, var)
+        self._read_dh = None                       # the last measured frame's information: its height change
         self._kf_at = None                         # the last keyframe's (distance, time)
 
     @property

@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class RideParams:
-    memory_m: float = 5.0       # a ride height is remembered over this much travel ([odometry] ride_memory_m)
-    window_m: float = 0.03       # the chain is smoothed over this much travel: the bounce averages out
+    memory_m: float = 5.0       # the chain is remembered over this much travel while no level is applied
+    window_m: float = 0.03      # the chain is smoothed over this much travel: the bounce averages out
     k_sigma: float = 4.0        # a level is applied once it stands this many of its sigma off the mount
     max_sigma: float = 0.01     # ...and only while that sigma is within this share of the height
 
