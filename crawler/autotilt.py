@@ -55,6 +55,7 @@ class FixedTilt:
     auto = False
     tau = 0.0
     sigma_rad = 0.0
+    distance_sigma_m = 0.0    # what the tilt's uncertainty leaves in the distance: none, configured
     steps = 0
 
     def __init__(self, camera, projection, roi):
@@ -94,6 +95,8 @@ class AutoTilt(FixedTilt):
         self._break_t = -math.inf     # the first measured frame after lost frames
         self._after_break = False
         self.steps = 0
+        self._spread = self._scale_spread(self.p.tilt.start_sigma_deg)   # while the search has found nothing
+        self._sensitivity = 0.0       # d(distance)/d(tilt) of the epoch's steps, once found
 
     @property
     def sigma_rad(self) -> float:
@@ -121,7 +124,33 @@ class AutoTilt(FixedTilt):
         change = self.tau - before
         for hop in self.hops:
             hop.d += hop.g * change
-        return sum(h.g for h in self.hops) * change
+        closed = sum(h.g for h in self.hops)
+        self._sensitivity = closed + (self._last.g if self._last is not None else 0.0)   # and the open step
+        return closed * change
+
+    @property
+    def distance_sigma_m(self) -> float:
+        """The 1 sigma the tilt's uncertainty leaves in the epoch's steps: before the search has
+        found it, their metres times the spread of the scale over the prior (the linear term is
+        nothing at 0 deg, where the scale is flat in the tilt); after, d(distance)/d(tilt) times sigma."""
+        if self.track is None:
+            metres = sum(h.d for h in self.hops) + (self._last.d if self._last is not None else 0.0)
+            return abs(metres) * self._spread
+        return abs(self._sensitivity) * self.sigma_rad
+
+    def _scale_spread(self, sigma_deg: float) -> float:
+        """The r.m.s. relative change of the metres per row at the ROI's centre over tilts about this
+        mount's, Gaussian with sigma_deg (a view past the wall left out)."""
+        m, kind = self.projection.mount, type(self.projection)
+        x, y, w, h = self.roi
+        c = self.camera.normalise(np.array([[x + w / 2.0, y + h / 2.0], [x + w / 2.0, y + h / 2.0 + 1.0]]))
+        z = np.linspace(-2.5, 2.5, 21)
+        rows = [kind(replace(m, tilt_rad=m.tilt_rad + math.radians(sigma_deg * v))).to_wall(c)[:, 1] for v in z]
+        k = np.abs(np.diff(np.array(rows), axis=1)[:, 0])
+        ok = np.isfinite(k)
+        wt = np.exp(-0.5 * z[ok] ** 2)
+        k0 = abs(np.diff(self.projection.to_wall(c)[:, 1])[0])
+        return float(np.sqrt(np.sum(wt * (k[ok] / k0 - 1.0) ** 2) / np.sum(wt)))
 
     def record(self, hop: Hop):
         self._last = hop
@@ -196,6 +225,7 @@ class AutoTilt(FixedTilt):
         centre = self.projection.mount.tilt_rad + self.tau
         self.search = TiltSearch(centre, 3 * math.radians(self.p.tilt.start_sigma_deg))   # a turn: anywhere
         self.track = None
+        self._spread = self._scale_spread(self.p.tilt.step_sigma_deg)
 
     def _reading(self, xy_k, xy_c, shutter):
         """The parabola through the disagreement at the estimate and either side of it: (curvature,

@@ -62,8 +62,7 @@ class Odometer:
     def reset(self, distance: float = 0.0, lateral: float = 0.0):
         """Forget the keyframe and start counting from the given distance."""
         self.distance, self.lateral = distance, lateral
-        self.frame = -1
-        self.lost_frames = 0
+        self.frame, self.lost_frames = -1, 0
         self._kf: Keyframe | None = None
         self._good_coarse = None   # quarter-size ROI of the last tracked frame, for the guess
         self._good_roi, self._good_at = None, (distance, lateral)   # ...and its distance, lateral
@@ -397,4 +396,5 @@ class Odometer:
             speed_m_s=self._speed.value() if tracking else None,
             lateral_m=self.lateral, roll_deg=math.degrees(self.lateral / r) if r else None,
             tracking=tracking, quality=quality, tracks=n_tracked, inliers=n_in,
-            spread_mm=None if sigma is None else sigma * 1000.0, keyframe=keyframe)
+            spread_mm=None if sigma is None else sigma * 1000.0, keyframe=keyframe,
+            tilt_sigma_m=self.pose.tilt_sigma_m)

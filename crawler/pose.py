@@ -90,6 +90,8 @@ class NullPose:
     def frame(self) -> dict:
         return {}
 
+    tilt_sigma_m = 0.0
+
     def checkpoint(self) -> dict:
         return {}
 
@@ -234,6 +236,11 @@ class PoseEstimator:
     @property
     def tilt_deg(self) -> float:
         return math.degrees(self.projection.mount.tilt_rad + self.tilt.tau)
+
+    @property
+    def tilt_sigma_m(self) -> float:
+        """What the tilt's uncertainty leaves in the distance: the epoch's d(distance)/d(tilt) times it."""
+        return self.tilt.distance_sigma_m
 
     @property
     def height_m(self) -> float:

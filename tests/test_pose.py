@@ -43,6 +43,12 @@ def test_tilt_auto_at_40_degrees_and_a_crawl_holds_within_0_3_degrees_from_2_s(r
     t = truth["t_s"][:len(rows)]
     tilt = np.array([r["tilt_deg"] for r in rows])
     assert np.all(np.abs(tilt[t >= 2.0] - 40.0) < 0.3)
+    # before the search has found it the distance is measured at 0 deg, 20 % short: sigma says so
+    err = np.abs(np.array([r["distance_m"] for r in rows]) - truth["distance_m"][:len(rows)])
+    sigma = np.array([r["sigma_m"] for r in rows])
+    searching = tilt == 0.0
+    assert searching.sum() > 30 and err[searching].max() > 0.005
+    assert np.all(err <= 2 * sigma)
 
 
 def test_tilt_auto_with_the_pose_estimator_holds_the_pose_until_the_tilt_is_found(render_run, crawlerd, tmp_path):
