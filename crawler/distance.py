@@ -31,7 +31,7 @@ class DistanceChain:
         """`qp`: the frame's mean quantiser when it comes from a compressed recording."""
         b = self.bridge.update(est)
         codec_m = self.codec.update(qp, est.keyframe and est.tracking and est.inliers > 0)
-        codec_m = math.hypot(codec_m, est.tilt_sigma_m)   # both scale the steps: systematic, as the codec's
+        codec_m = math.hypot(codec_m, est.scale_sigma_m)   # both scale the steps: systematic, as the codec's
         out = replace(est, distance_m=b.distance_m, sigma_m=math.hypot(b.sigma_m, codec_m), bridged=b.bridged,
                       source="model" if b.bridged else "vision", gap_s=b.gap_s)
         if self.fusion is None:

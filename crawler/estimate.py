@@ -33,8 +33,8 @@ class Estimate:
                                       # new tilt (crawler/autotilt.py): not motion of this frame
     since: tuple | None = None        # a fresh start whose motion is known from an earlier frame on (a dense
                                       # shift confirmed over several): that frame's (t_s, distance_m)
-    tilt_sigma_m: float = 0.0         # of distance_m, the 1 sigma a tilt not known exactly leaves in the steps
-                                      # it will measure again (tilt auto: crawler/autotilt.py)
+    scale_sigma_m: float = 0.0        # of distance_m, the 1 sigma a tilt (tilt auto) or a ride height
+                                      # (crawler/ride.py) not known exactly leaves in the steps
     # filled in after the odometer (crawler/distance.py): the published distance's uncertainty and origin
     sigma_m: float | None = None
     bridged: bool = False
@@ -46,7 +46,7 @@ class Estimate:
 
     def as_dict(self) -> dict:
         d = dict(self.__dict__)
-        del d["rescaled_m"], d["since"], d["tilt_sigma_m"]   # internal: sigma_m holds the last
+        del d["rescaled_m"], d["since"], d["scale_sigma_m"]   # internal: sigma_m holds the last
         for k in ("distance_m", "lateral_m"):
             d[k] = round(d[k], 6)
         for k in ("speed_m_s", "roll_deg", "spread_mm", "sigma_m", "wheel_distance_m", "wheel_scale"):

@@ -397,4 +397,4 @@ class Odometer:
             lateral_m=self.lateral, roll_deg=math.degrees(self.lateral / r) if r else None,
             tracking=tracking, quality=quality, tracks=n_tracked, inliers=n_in,
             spread_mm=None if sigma is None else sigma * 1000.0, keyframe=keyframe,
-            tilt_sigma_m=self.pose.tilt_sigma_m)
+            scale_sigma_m=self.pose.scale_sigma_m)

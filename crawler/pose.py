@@ -90,7 +90,7 @@ class NullPose:
     def frame(self) -> dict:
         return {}
 
-    tilt_sigma_m = 0.0
+    scale_sigma_m = 0.0
 
     def checkpoint(self) -> dict:
         return {}
@@ -238,9 +238,9 @@ class PoseEstimator:
         return math.degrees(self.projection.mount.tilt_rad + self.tilt.tau)
 
     @property
-    def tilt_sigma_m(self) -> float:
-        """What the tilt's uncertainty leaves in the distance: the epoch's d(distance)/d(tilt) times it."""
-        return self.tilt.distance_sigma_m
+    def scale_sigma_m(self) -> float:
+        """What the tilt's uncertainty (crawler/autotilt.py) and the ride height's leave in the distance."""
+        return math.hypot(self.tilt.distance_sigma_m, self.ride.spent_sigma_m if self.ride else 0.0)
 
     @property
     def height_m(self) -> float:

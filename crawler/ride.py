@@ -46,6 +46,7 @@ class RideHeight:
         self.smooth = 0.0         # the chain, smoothed over window_m
         self.level_m = 0.0        # the applied level: 0 until it is significant
         self.sigma_m = 0.0        # the smoothed chain's noise when no level is there
+        self.spent_sigma_m = 0.0  # what the levels applied leave in the distance: their sigma times the metres
 
     def handover(self, change_m: float, var_m2: float, moved_m: float, dt_s: float,
                  bounce_m: float, bounce_tau_s: float) -> float:
@@ -55,6 +56,7 @@ class RideHeight:
         moved = abs(moved_m)
         if not (math.isfinite(change_m) and math.isfinite(var_m2)) or moved <= 0.0:
             return self.level_m
+        self.spent_sigma_m += moved * self.sigma_m / self.height_m if self.level_m else 0.0   # one level: linear
         keep = 1.0 if self.level_m else math.exp(-moved / self.p.memory_m)   # a bank found is held
         self.chain = keep * self.chain + change_m
         self.chain_var = keep * keep * self.chain_var + var_m2

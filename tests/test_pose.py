@@ -418,3 +418,5 @@ def test_ride_height_on_reads_a_bank_of_sediment_that_the_default_reads_long(ren
     est, true = np.array([r["camera_height_m"] for r in rows]), truth["camera_height_m"][:len(rows)]
     plateau = (d > 0.5) & (d < 0.75)
     assert plateau.any() and np.all(np.abs(est[plateau] - true[plateau]) < 3e-3)
+    err = np.abs(d - truth["distance_m"][:len(rows)])           # the level's own sigma is in sigma_m
+    assert np.mean(err <= 2 * np.array([r["sigma_m"] for r in rows])) >= 0.95
