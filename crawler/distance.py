@@ -31,8 +31,8 @@ class DistanceChain:
         """`qp`: the frame's mean quantiser when it comes from a compressed recording."""
         b = self.bridge.update(est)
         codec_m = self.codec.update(qp, est.keyframe and est.tracking and est.inliers > 0)
-        codec_m = math.hypot(codec_m, est.scale_sigma_m)   # both scale the steps: systematic, as the codec's
-        out = replace(est, distance_m=b.distance_m, sigma_m=math.hypot(b.sigma_m, codec_m), bridged=b.bridged,
+        scale_m = math.hypot(codec_m, est.scale_sigma_m)   # the codec's, the tilt's, the ride's: they scale steps
+        out = replace(est, distance_m=b.distance_m, sigma_m=math.hypot(b.sigma_m, scale_m), bridged=b.bridged,
                       source="model" if b.bridged else "vision", gap_s=b.gap_s)
         if self.fusion is None:
             return out
@@ -45,7 +45,7 @@ class DistanceChain:
         if speed is None and fused.source == "wheel" and math.isfinite(fused.speed_m_s):
             speed = fused.speed_m_s            # the camera is blind: the wheel's speed is the one there is
         return replace(out, distance_m=fused.distance_m,
-                       sigma_m=math.hypot(self.bridge.sigma_meas_m, fused.sigma_m, codec_m),
+                       sigma_m=math.hypot(self.bridge.sigma_meas_m, fused.sigma_m, scale_m),
                        source=fused.source, slip=fused.slip, wheel_distance_m=fused.wheel_distance_m,
                        wheel_scale=fused.wheel_scale, speed_m_s=speed)
 
