@@ -127,6 +127,7 @@ class PoseEstimator:
         self._end = None                           # the last measured frame's d(step)/d(pitch, height, sway)
         self._closing = None                       # ...when that frame is the keyframe now
         self.ride = RideHeight(projection.mount.height_m) if self.p.ride_height else None
+        self._ride_read = [i for i in _RIDE_READ if self._keep[i]]   # what its height change is read with
         self._read_dh = None                       # the last measured frame's information: its height change
         self._kf_at = None                         # the last keyframe's (distance, time)
 
@@ -145,7 +146,7 @@ class PoseEstimator:
         continuous = self._t is None or t_s == self._t    # the run's first, or on the frame just measured
         self._closing = self._end if continuous else None
         if self.ride and continuous and self._read_dh is not None and self._kf_at is not None:
-            change = height_change(*self._read_dh, [i for i in _RIDE_READ if self._keep[i]])
+            change = height_change(*self._read_dh, self._ride_read)
             if change is not None:
                 self.ride.handover(*change, kf.distance - self._kf_at[0], t_s - self._kf_at[1],
                                    self._sig[HEIGHT], self.p.bounce_tau_s)
