@@ -318,11 +318,11 @@ class GapBridge:
         reopen it: it goes on from where it began."""
         g, (t1, samples) = self._gap, self._settling
         self._settling = None
-        # a gap with no speed before it is settled with the speed after alone, over all of it: that
-        # speed must have been measured for min_history_s at least (a frame interval's reading,
-        # times the gap over the interval, is anything)
+        # the speed after must have been measured for min_history_s: with no speed before it settles
+        # all of the gap alone, and the first frames seen again are the least sure (the wall half wet
+        # or half lit): one frame interval's reading, times a gap of seconds over it, is anything
         span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
-        enough = span > 0 and (g.v0 is not None or span >= self.p.min_history_s - _TIME_EPS)
+        enough = span >= self.p.min_history_s - _TIME_EPS
         v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if enough else None
         a1 = 0.0
         if v1 is not None and len(samples) >= 5 and span >= 0.5 * self.p.history_s:

@@ -141,6 +141,21 @@ def test_a_measurement_too_short_for_a_speed_does_not_close_the_gap():
     assert b.gap_s == pytest.approx(16 / FPS, abs=1e-6)
 
 
+def test_one_frame_interval_after_a_gap_does_not_settle_it_even_with_a_speed_before():
+    # the wall comes back half wet: a fresh start whose next frame reads no motion (its features on
+    # what stays put), then blind again. One interval's reading, times the gap, would take 0.2 m off
+    # a crawler that never slowed: the gap goes on at the speed before it
+    bridge = GapBridge()
+    for i in range(60):                                  # 2 s at 0.3 m/s
+        bridge.update(est(i / FPS, 0.3 * i / FPS, keyframe=i % 10 == 0))
+    for i in range(60, 100):
+        bridge.update(est(i / FPS, 0.3 * 59 / FPS, tracking=False))
+    bridge.update(est(100 / FPS, 5.0, continuous=False, keyframe=True))
+    bridge.update(est(101 / FPS, 5.0001, keyframe=True))
+    b = bridge.update(est(102 / FPS, 5.0001, tracking=False))
+    assert b.bridged and b.distance_m == pytest.approx(0.3 * 102 / FPS, abs=0.01)
+
+
 def flicker(bridge, truth, t_gap, t_fresh, t_end):
     """Measured to t_gap, blind to a fresh start at t_fresh, one frame lost, then frames measured
     against that fresh start (continuous with it, not with the frames before the gap), as heavy
