@@ -5,14 +5,17 @@ is the LED's specular highlight, the lighting's fall-off, and whatever the video
 unchanged from the last frame. Those dominate a frame of such a wall, so a plain phase correlation
 finds them and reads "no motion". Dividing each frame by a running mean of the recent frames (what
 stays put in the image) leaves only what moves with the wall; a phase correlation of two such
-frames at quarter resolution then finds the wall's shift. It is a lower-quality measurement than
-tracked features (one shift for the whole region, converted at the region's centre), used only
-where features cannot be had, and only once the running mean has seen enough frames.
+frames at quarter resolution then finds the wall's shift. The frames are first resampled onto a grid
+even in wall metres (`wall_grid`), on which the wall's motion is one shift everywhere, and the shift
+is read to a hundredth of a pixel (`refine`). It is a lower-quality measurement than tracked features
+(one shift for the whole region), used only where features cannot be had, and only once the running
+mean has seen enough frames.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -28,13 +31,14 @@ class DenseParams:
     blur: float = 1.0                 # Gaussian sigma (pixels at that level) before correlating
     min_response: float = 0.3         # weaker phase-correlation peaks are not a measurement
     noise_px: float = 0.4             # 1-sigma error of one shift, full-resolution pixels
-    rel_error: float = 0.03           # ...and of its scale: one shift for a whole region, read 0.4-3 % short on smooth walls
+    rel_error: float = 0.015          # ...and of its scale (the wet stress runs read 0.1-0.6 % short)
     dark_share: float = 0.2           # a region darker than this share of the lit wall: nothing to see
     min_energy_dn: float = 0.4        # smoother than a sensor's noise (flow.texture_energy): the encoder
                                       # flattened it, and what still changes is the light, not the wall
     min_changed: float = 0.2          # fewer pixels changed at all since the last frame: the encoder froze it
     confirm: int = 3                  # shifts in a row that must agree before any is believed...
     agree: float = 0.2                # ...within this share of each other (or a pixel)
+    refine: int = 1                   # passes of `refine` on OpenCV's shift (0: OpenCV's as it is)
 
 
 class DenseShift:
@@ -47,6 +51,7 @@ class DenseShift:
         self._size = (-(-w // f), -(-h // f))
         self._scale = float(f)
         self._window = cv2.createHanningWindow(self._size, cv2.CV_32F)
+        self.maps = None              # (map_x, map_y) of wall_grid: correlate on the wall, not the image
         self.reset()
 
     def reset(self):
@@ -57,6 +62,12 @@ class DenseShift:
         self._pending: list = []      # (shift, response, start time) found, not yet confirmed by the next
         self._last_dv = None          # the last shift handed out, once confirmed
         self._prev_t = None           # the last frame's time
+
+    def resample(self, maps):
+        """Resample the frames with these maps (dense_conversion's) from now on; what was seen on the
+        old grid is forgotten."""
+        self.maps = maps
+        self.reset()
 
     def shift(self, roi: np.ndarray, t_s: float):
         """((du, dv), response, since_s): the shift since the last one returned (the sum of the
@@ -95,6 +106,8 @@ class DenseShift:
         frozen = self._prev_small is not None and encoder_copy(small8, self._prev_small, self.p.min_changed)
         self._prev_small = small8
         small = small8.astype(np.float32)
+        if self.maps is not None:
+            small = cv2.remap(small, self.maps[0], self.maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         if self._mean is None:
             self._mean = small.copy()
         else:                         # a plain average at first: the first frame must not linger in it
@@ -106,10 +119,79 @@ class DenseShift:
         self._frames += 1
         if prev is None or self._frames <= self.p.warmup or frozen:
             return None
-        (du, dv), response = cv2.phaseCorrelate(prev, flat, self._window)
+        (du, dv), response = cv2.phaseCorrelate(prev.copy(), flat.copy(), self._window)  # it windows them in place
         if response < self.p.min_response:
             return None
+        if self.p.refine:
+            du, dv = refine(prev, flat, (du, dv), self.p.refine)
         return (du * self._scale, dv * self._scale), float(response)
+
+
+def refine(prev: np.ndarray, cur: np.ndarray, guess, passes: int = 1) -> tuple[float, float]:
+    """The shift prev -> cur (cur(x) = prev(x - d)) to a hundredth of a pixel, from a guess within one.
+
+    OpenCV's phase correlation reads a shift of a few pixels several % off, and the same way at every
+    frame of a steady speed: its sub-pixel step is a centroid of the peak (which locks towards whole
+    pixels), and its window stays put while the wall moves under it (which pulls towards zero, the
+    more so the coarser the shading). Here the window on `cur` moves with the guess, so both windows
+    see the same wall; the spectra are whitened only halfway (the faint fine grain is noise, not
+    signal); and the peak is found on the correlation as a continuous function of the shift, by
+    Newton's method from the guess. For a pure shift that correlation is symmetric about the true
+    shift, so its peak is the shift itself: on exactly shifted textures it reads within 0.3 %
+    (tests/test_dense.py). The wall's motion is such a shift on wall_grid's grid, not in the image."""
+    h, w = prev.shape
+    ky, kx, half, win_y, win_x = _spectrum_axes(h, w)
+    dx, dy = float(guess[0]), float(guess[1])
+    fa = np.conj(_half_white(np.fft.rfft2(prev * np.outer(win_y, win_x))))
+    for _ in range(passes):
+        if abs(dx) > w / 2 or abs(dy) > h / 2:
+            break
+        r = _half_white(np.fft.rfft2(cur * np.outer(_hann(h, dy), _hann(w, dx)))) * fa
+        for _ in range(2):
+            dx, dy = _newton(r, ky, kx, half, dx, dy)
+    if not (abs(dx - guess[0]) <= 1.0 and abs(dy - guess[1]) <= 1.0):
+        return float(guess[0]), float(guess[1])   # another peak (a periodic wall): OpenCV's stands
+    return dx, dy
+
+
+@lru_cache(maxsize=4)
+def _spectrum_axes(h: int, w: int):
+    """The angular frequencies of a real 2-D FFT's rows and columns, the weight of each column in
+    the full spectrum (the half stored stands for both halves but its first and Nyquist columns),
+    and the still window."""
+    half = np.full(w // 2 + 1, 2.0)
+    half[0] = 1.0
+    if w % 2 == 0:
+        half[-1] = 1.0
+    return 2 * np.pi * np.fft.fftfreq(h), 2 * np.pi * np.fft.rfftfreq(w), half, _hann(h, 0.0), _hann(w, 0.0)
+
+
+def _half_white(f: np.ndarray) -> np.ndarray:
+    return f / (np.sqrt(np.abs(f)) + 1e-12)
+
+
+def _hann(n: int, shift: float) -> np.ndarray:
+    """OpenCV's Hanning window over n samples, moved by `shift` (zero where it moved off)."""
+    i = np.arange(n) - shift
+    win = 0.5 - 0.5 * np.cos(2 * np.pi * i / (n - 1))
+    win[(i < 0) | (i > n - 1)] = 0.0
+    return win
+
+
+def _newton(r, ky, kx, half, dx, dy) -> tuple[float, float]:
+    """One Newton step towards the peak of c(d) = Re sum r e^(i k.d) over the full spectrum (r its
+    real FFT's half), from (dx, dy); at most half a pixel. Two small matrix products give c's
+    gradient and Hessian."""
+    ex = half * np.exp(1j * kx * dx)
+    ey = np.exp(1j * ky * dy)
+    m = np.array([ey, ky * ey, ky * ky * ey]) @ (r @ np.array([ex, kx * ex, kx * kx * ex]).T)
+    gy, gx = -m[1, 0].imag, -m[0, 1].imag
+    hyy, hxx, hxy = -m[2, 0].real, -m[0, 2].real, -m[1, 1].real
+    det = hyy * hxx - hxy * hxy
+    if not (det > 0 and hyy < 0):            # not at a maximum's shoulder: stay
+        return dx, dy
+    sy, sx = (hxx * gy - hxy * gx) / det, (hyy * gx - hxy * gy) / det
+    return dx - float(np.clip(sx, -0.5, 0.5)), dy - float(np.clip(sy, -0.5, 0.5))
 
 
 def centre_jacobian(wall, roi) -> tuple:
@@ -121,6 +203,45 @@ def centre_jacobian(wall, roi) -> tuple:
     dv = wall(c + [[0, 0.5]]) - wall(c + [[0, -0.5]])
     du = wall(c + [[0.5, 0]]) - wall(c + [[-0.5, 0]])
     return (-float(dv[0, 1]), -float(du[0, 1]), float(dv[0, 0]), float(du[0, 0])), abs(float(dv[0, 1]))
+
+
+def wall_grid(wall, pixels, roi, level: int, jac) -> tuple | None:
+    """(map_x, map_y, k): where each pixel of a grid even in wall metres lies in the ROI shrunk to
+    `level`, for cv2.remap, and the grid's spacing as a share k of the ROI centre's pixel (the
+    axial and lateral metres per pixel of `jac`, centre_jacobian's). On that grid the wall's motion
+    is one shift everywhere, where in the image it is not (at a tilt the near rows move farther
+    than the far ones, and one phase correlation of the image reads 1-3 % off their mean). The grid
+    has the shrunk ROI's size and is centred on the ROI's centre; k < 1 where a grid at the
+    centre's pixel would reach past the ROI's edge. None if the ROI is not on the wall."""
+    x, y, w, h = roi
+    f = 2 ** level
+    wq, hq = -(-w // f), -(-h // f)
+    c = np.array([[x + (w - 1) / 2.0, y + (h - 1) / 2.0]])
+    centre = wall(c)[0]
+    jyv, jsu = jac[0], jac[3]
+    if not (np.all(np.isfinite(centre)) and jyv > 0 and jsu != 0):
+        return None
+    jj, ii = np.meshgrid(np.arange(wq) - (wq - 1) / 2.0, np.arange(hq) - (hq - 1) / 2.0)
+    for k in (1.0, 0.9, 0.8, 0.7, 0.6, 0.5):
+        pts = np.column_stack([centre[0] + jsu * f * k * jj.ravel(), centre[1] - jyv * f * k * ii.ravel()])
+        px = pixels(pts)
+        qx = (px[:, 0] - x - (f - 1) / 2.0) / f
+        qy = (px[:, 1] - y - (f - 1) / 2.0) / f
+        ok = np.isfinite(qx) & np.isfinite(qy)
+        if ok.all() and qx.min() >= -0.5 and qy.min() >= -0.5 and qx.max() <= wq - 0.5 and qy.max() <= hq - 0.5:
+            return qx.reshape(hq, wq).astype(np.float32), qy.reshape(hq, wq).astype(np.float32), k
+    return None
+
+
+def dense_conversion(wall, pixels, roi, level: int, jac) -> tuple:
+    """(Jacobian, maps): how the dense shift becomes wall metres ((axial m per row, per column,
+    lateral m per row, per column), as window_jacobian's), and the wall grid's maps to resample the
+    frames with (or None: then the shift is of the image itself, and its Jacobian the window's)."""
+    grid = wall_grid(wall, pixels, roi, level, jac)
+    if grid is None:
+        return window_jacobian(wall, roi), None
+    map_x, map_y, k = grid
+    return (k * jac[0], 0.0, 0.0, k * jac[3]), (map_x, map_y)
 
 
 def window_jacobian(wall, roi) -> tuple:

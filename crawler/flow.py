@@ -113,8 +113,10 @@ def encoder_copy(img: np.ndarray, prev: np.ndarray, min_changed: float) -> bool:
 
 
 def coarse_shift(prev: np.ndarray, cur: np.ndarray, window: np.ndarray, scale: float):
-    """Global image shift prev -> cur by phase correlation: ((dx, dy) in full-res px, response)."""
-    (dx, dy), response = cv2.phaseCorrelate(prev, cur, window)
+    """Global image shift prev -> cur by phase correlation: ((dx, dy) in full-res px, response).
+    OpenCV multiplies its inputs by the window in place (when their size suits its DFT, as 60 x 60
+    does): a reference kept for every frame of a gap would be windowed again at each one."""
+    (dx, dy), response = cv2.phaseCorrelate(prev.copy(), cur.copy(), window)
     return np.array([dx * scale, dy * scale]), float(response)
 
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from . import flow
 from .consensus import LATERAL_AXIAL, Consensus, SpeedFilter, robust_step, rolling_shutter
-from .dense import DenseShift, centre_jacobian, window_jacobian
+from .dense import DenseShift, centre_jacobian, dense_conversion
 from .estimate import Estimate
 from .gates import FrameGates, SpreadGate, reacquired
 from .geometry import Camera, Projection
@@ -41,18 +41,17 @@ class Odometer:
         self.params = params or OdometryParams()
         x, y, w, h = self.roi
         self._offset = np.array([x, y], np.float64)
-        self._border = self.params.flow.win_px // 2 + 1
-        b = self._border
+        self._border = b = self.params.flow.win_px // 2 + 1
         # where a guess must fall for the feature to be tracked, as a box's centre and half-size
         mid = np.float32([(w - 1) / 2.0, (h - 1) / 2.0])
         self.view, self._views = (mid, mid - b), {}    # ...and tiled for n points (cheaper numpy)
+        self._dense = DenseShift((h, w), self.params.dense)
         self.remount(projection)
         lvl = self.params.flow.coarse_level
         self._coarse_scale = float(2 ** lvl)
         small = (math.ceil(h / 2 ** lvl), math.ceil(w / 2 ** lvl))
         self._window = cv2.createHanningWindow(small[::-1], cv2.CV_32F)
         self._rs = camera.readout_s > 0
-        self._dense = DenseShift((h, w), self.params.dense)
         self.reference_seq = 0     # counts new references, so a writer knows when to save one
         self.tracker = tracker     # keyframe.track_visible here, or what crawler/workers.py tracked
         self.reset()
@@ -160,7 +159,8 @@ class Odometer:
         """Measure with this projection (a new tilt): the gates' unit and the shift's Jacobians."""
         self.projection = projection
         self._jac, self.m_per_px = centre_jacobian(self._wall, self.roi)
-        self._dense_jac = window_jacobian(self._wall, self.roi)
+        self._dense_jac, maps = dense_conversion(self._wall, self._pixels, self.roi, self.params.dense.level, self._jac)
+        self._dense.resample(maps)
 
     def _wall(self, px: np.ndarray) -> np.ndarray:
         return self.projection.to_wall(self.camera.normalise(px))

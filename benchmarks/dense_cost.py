@@ -1,0 +1,74 @@
+"""What one dense shift costs on the Pi 2 (a wall too smooth for features), in ARM instructions.
+
+    python benchmarks/dense_cost.py                # the figures (runs the yardstick 6 times)
+    python benchmarks/dense_cost.py N MODE         # one run: N dense shifts; MODE full|image|plain
+
+N frames of a faint wall (3 % contrast, 8 px a frame) through the odometer's DenseShift on a
+240 x 240 window at 24 deg: `full` as crawlerd runs it (on the wall grid, refined), `image` refined
+on the image itself (no wall grid), `plain` OpenCV's shift of the image as it was before. The cost
+is the slope between a short and a long run, so start-up cancels. It is paid only on frames
+without features (docs/odometry.md, "Weak texture"); a tracked frame pays none of it. Not a test:
+it prints figures (docs/performance.md).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+COUNT = os.environ.get("ARM_COUNT", "/work/shared/tools/armhf/count")
+PI2_HZ, PI2_IPC = 900e6, 0.5
+
+
+def shifts(n: int, mode: str):
+    import cv2
+    import numpy as np
+
+    from crawler.dense import DenseParams
+    from crawler.geometry import Camera, Mount, make_projection
+    from crawler.odometry import Odometer
+    from crawler.odometry_params import OdometryParams
+
+    cam = Camera.from_fov(640, 480, 37.16, 53.50)
+    params = OdometryParams(dense=DenseParams(refine=0 if mode == "plain" else 1))
+    odo = Odometer(cam, make_projection("cylinder", Mount(0.15, 0.2256, math.radians(24))),
+                   (200, 120, 240, 240), params=params)
+    dense = odo._dense
+    if mode != "full":
+        dense.resample(None)
+    rng = np.random.default_rng(1)
+    wall = cv2.GaussianBlur(rng.normal(0, 1, (800, 240)).astype(np.float32), (0, 0), 6.0)
+    wall = 120 + 0.03 * 64 * wall / wall.std()
+    frames = [np.clip(wall[8 * i:8 * i + 240] + rng.normal(0, 0.6, (240, 240)), 0, 255).astype(np.uint8)
+              for i in range(60)]
+    found = sum(dense.shift(frames[i % 60], i / 30) is not None for i in range(n))
+    print("shifts", found, "of", n)
+
+
+def _count(*args) -> int:
+    r = subprocess.run([COUNT, *args], cwd=ROOT, capture_output=True, text=True)
+    m = re.search(r"arm instructions: (\d+)", r.stderr)
+    if r.returncode or not m:
+        raise SystemExit(f"dense_cost: {' '.join(args)} failed: {r.stderr.strip()[-400:]}")
+    return int(m.group(1))
+
+
+def report():
+    script = "benchmarks/dense_cost.py"
+    us = 1e6 / (PI2_HZ * PI2_IPC)
+    for mode in ("plain", "image", "full"):
+        per = (_count(script, "90", mode) - _count(script, "30", mode)) / 60
+        print(f"{mode:5s}: {per / 1e6:.2f} M ARM instructions per dense shift ({per * us / 1000:.1f} ms on a Pi 2)")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 1:
+        report()
+    else:
+        shifts(int(sys.argv[1]), sys.argv[2])
