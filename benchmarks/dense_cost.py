@@ -22,7 +22,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-COUNT = os.environ.get("ARM_COUNT", "/work/shared/tools/armhf/count")
+COUNT = os.environ.get("ARM_COUNT", str(ROOT / "benchmarks" / "armhf" / "count"))   # benchmarks/armhf/setup first
 PI2_HZ, PI2_IPC = 900e6, 0.5
 
 
