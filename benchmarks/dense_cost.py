@@ -14,16 +14,12 @@ it prints figures (docs/performance.md).
 from __future__ import annotations
 
 import math
-import os
-import re
-import subprocess
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-COUNT = os.environ.get("ARM_COUNT", str(ROOT / "benchmarks" / "armhf" / "count"))   # benchmarks/armhf/setup first
-PI2_HZ, PI2_IPC = 900e6, 0.5
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
 
 def shifts(n: int, mode: str):
@@ -51,20 +47,13 @@ def shifts(n: int, mode: str):
     print("shifts", found, "of", n)
 
 
-def _count(*args) -> int:
-    r = subprocess.run([COUNT, *args], cwd=ROOT, capture_output=True, text=True)
-    m = re.search(r"arm instructions: (\d+)", r.stderr)
-    if r.returncode or not m:
-        raise SystemExit(f"dense_cost: {' '.join(args)} failed: {r.stderr.strip()[-400:]}")
-    return int(m.group(1))
-
-
 def report():
+    from arm_yardstick import pi2_fps, run, slope
+
     script = "benchmarks/dense_cost.py"
-    us = 1e6 / (PI2_HZ * PI2_IPC)
     for mode in ("plain", "image", "full"):
-        per = (_count(script, "90", mode) - _count(script, "30", mode)) / 60
-        print(f"{mode:5s}: {per / 1e6:.2f} M ARM instructions per dense shift ({per * us / 1000:.1f} ms on a Pi 2)")
+        per = slope(run([script, "30", mode]), run([script, "90", mode]), 60)
+        print(f"{mode:5s}: {per / 1e6:.2f} M ARM instructions per dense shift ({1000 / pi2_fps(per):.1f} ms on a Pi 2)")
 
 
 if __name__ == "__main__":
