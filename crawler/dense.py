@@ -20,7 +20,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from .flow import encoder_copy
+from .flow import coarse_shift, encoder_copy
 
 
 @dataclass(frozen=True)
@@ -119,7 +119,7 @@ class DenseShift:
         self._frames += 1
         if prev is None or self._frames <= self.p.warmup or frozen:
             return None
-        (du, dv), response = cv2.phaseCorrelate(prev.copy(), flat.copy(), self._window)  # it windows them in place
+        (du, dv), response = coarse_shift(prev, flat, self._window, 1.0)
         if response < self.p.min_response:
             return None
         if self.p.refine:
