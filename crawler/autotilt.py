@@ -147,9 +147,9 @@ class AutoTilt(FixedTilt):
         z = np.linspace(-2.5, 2.5, 21)
         rows = [kind(replace(m, tilt_rad=m.tilt_rad + math.radians(sigma_deg * v))).to_wall(c)[:, 1] for v in z]
         k = np.abs(np.diff(np.array(rows), axis=1)[:, 0])
+        k0 = k[len(z) // 2]                       # the grid's middle: this mount's own tilt
         ok = np.isfinite(k)
         wt = np.exp(-0.5 * z[ok] ** 2)
-        k0 = abs(np.diff(self.projection.to_wall(c)[:, 1])[0])
         return float(np.sqrt(np.sum(wt * (k[ok] / k0 - 1.0) ** 2) / np.sum(wt)))
 
     def record(self, hop: Hop):
