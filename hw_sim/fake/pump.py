@@ -8,8 +8,10 @@ Either way the pixels are the same pure function of the frame (Simulator.render 
 """
 from __future__ import annotations
 
+import atexit
 import logging
 import threading
+import weakref
 from dataclasses import dataclass
 from typing import Callable
 
@@ -22,6 +24,15 @@ _log = logging.getLogger(__name__)
 AHEAD_S = 0.080             # render up to this long before a frame completes
 PREFETCH_S = 0.3            # when idle, generate the texture tiles of the view this far ahead
 CACHE_FRAMES = 16
+_RUNNING: weakref.WeakSet = weakref.WeakSet()     # camera threads a caller never stopped
+
+
+@atexit.register
+def _stop_all() -> None:
+    """Stop every camera thread before the interpreter tears down: a daemon thread still inside
+    OpenCV while the interpreter finalises aborts the process (a test that fails before close())."""
+    for pump in list(_RUNNING):
+        pump.stop()
 
 
 @dataclass(frozen=True)
@@ -77,6 +88,7 @@ class RenderAhead(RenderNow):
         self._cond = threading.Condition()
         self._thread = threading.Thread(target=self._run, name="hw_sim-camera", daemon=True)
         self._thread.start()
+        _RUNNING.add(self)
 
     def _run(self) -> None:
         while True:
@@ -145,3 +157,4 @@ class RenderAhead(RenderNow):
             self._cond.notify_all()
         if self._thread is not threading.current_thread():
             self._thread.join()
+        _RUNNING.discard(self)
