@@ -18,4 +18,9 @@ class ConfigError(BadValue):
     def __init__(self, name: str, value: Any, why: str):
         self.field = name
         self.value = value
+        self.why = why
         super().__init__(f"{name}={value!r} {why}")
+
+    def __reduce__(self):
+        # rebuilt from its three parts: a render in a process pool raises it back to the parent
+        return type(self), (self.field, self.value, self.why)

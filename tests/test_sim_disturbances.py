@@ -2,6 +2,7 @@
 what each does to the pixels and the ground truth, in render and through the Picamera2 fake."""
 import json
 import math
+import pickle
 
 import cv2
 import numpy as np
@@ -158,6 +159,8 @@ def test_texture_image_errors_name_the_field(tmp_path):
     with pytest.raises(ConfigError, match="not a readable image") as e:
         Simulator(SimConfig(texture="image", texture_image=str(bad)))
     assert e.value.field == "texture_image"
+    back = pickle.loads(pickle.dumps(e.value))              # a render in a process pool raises it back
+    assert type(back) is ConfigError and back.field == "texture_image" and str(back) == str(e.value)
 
 
 # --- pose schedules -----------------------------------------------------------------------------------
