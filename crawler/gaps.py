@@ -36,6 +36,8 @@ from collections import deque
 from dataclasses import dataclass
 
 from .motionfit import ramp as _ramp
+from .motionfit import ramp_at as _ramp_at
+from .motionfit import remeasured as _remeasured
 from .motionfit import slope as _slope
 
 
@@ -324,13 +326,20 @@ class GapBridge:
         span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
         enough = span >= self.p.min_history_s - _TIME_EPS
         v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if enough else None
-        a1 = 0.0
+        v_end, a1 = v1, 0.0
         if v1 is not None and len(samples) >= 5 and span >= 0.5 * self.p.history_s:
             # speeding up or slowing down since it was seen again: the speed at the gap's end, and
-            # the rate (a crawler still speeding up started not long before)
-            v_end, a, sa = _ramp([t - t1 for t, _ in samples], [d for _, d in samples], self.p.min_history_s)
+            # the rate (a crawler still speeding up started not long before). After a stop inside
+            # the gap, a ramp too short for its rate is read at the braking's rate (the drive's)
+            ts, ds = [t - t1 for t, _ in samples], [d for _, d in samples]
+            v, a, sa = _ramp(ts, ds, self.p.min_history_s)
+            stopped = self._stops(g, t1 - g.t0) is not None
             if (rate := self._ramp_rate(a, sa)) is not None:
-                v1, a1 = v_end, rate
+                v_end, a1 = v, rate
+            elif stopped and (v := _ramp_at(ts, ds, math.copysign(g.a0, v1))) is not None:
+                v_end, a1 = v, math.copysign(g.a0, v1)
+            if stopped and v_end * v1 <= 0:       # a speed at t1 against the motion after: it stood then
+                v_end, a1 = 0.0, 0.0
         if v1 is None:                # reopen: drop what the short measurement added to the history
             while self._hist and self._hist[-1][0] >= t1:
                 self._hist.pop()
@@ -339,7 +348,7 @@ class GapBridge:
             return
         T = t1 - g.t0
         self._settled_v = (samples[-1][0], v1)
-        corrected, unseen_var = self._settled_travel(g, T, v1, a1)
+        corrected, unseen_var = self._settled_travel(g, T, v_end, a1)
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
         self.offset_m += correction
         self._out_m += correction
@@ -388,13 +397,3 @@ class GapBridge:
 
 
 _TIME_EPS = 1e-6                  # frame times are sums of intervals: 3 / 30 s may come out under 0.1 s
-
-
-def _remeasured(samples: list, gain_m: float):
-    """The odometer measured its steps since the fresh start again (a better tilt): the samples the
-    speed after the gap is taken from gain it too, in proportion to the distance each had covered
-    (a scale error), so that the correction is not read as speed."""
-    if gain_m and len(samples) > 1 and samples[-1][1] != samples[0][1]:
-        d0, span = samples[0][1], samples[-1][1] - samples[0][1]
-        samples[:] = [(t, d + gain_m * (d - d0) / span) for t, d in samples]
-    return samples

@@ -45,3 +45,39 @@ def ramp(ts, ds, min_s: float) -> tuple[float, float, float]:
     except np.linalg.LinAlgError:
         var_a = np.inf
     return float(coef[1]), float(coef[2]), math.sqrt(max(var_a, 0.0))
+
+
+def ramp_at(ts, ds, rate: float, k: float = 3.0, floor_m: float = 2e-5) -> float | None:
+    """Speed at t = 0 of a crawler still speeding up at a known rate (its drive's, signed), from
+    before t = 0 until it cruises, when the distances show that ramp k sigma clear of a plain cruise
+    (a start seen late, the ramp too short for `ramp` to read its rate); else None. Least squares
+    over where the ramp ends; floor_m: the distances are never known better than this."""
+    t, d = np.asarray(ts, float), np.asarray(ds, float)
+    if len(t) < 5 or not rate:
+        return None
+    A = np.column_stack([np.ones_like(t), t])
+
+    def fit(y):
+        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+        return float(np.sum((A.dot(coef) - y) ** 2)), float(coef[1])
+
+    cruise, _ = fit(d)
+    best = None
+    for end in np.linspace(t.min(), t.max(), 25)[1:]:      # d = c + v t - rate (end t - t^2 / 2) to the end
+        lag = np.where(t < end, end * t - 0.5 * t * t, 0.5 * end * end)
+        rss, v = fit(d + rate * lag)
+        if best is None or rss < best[0]:
+            best = (rss, v - rate * end)
+    rss, v0 = best
+    noise = max(rss, len(t) * floor_m * floor_m) / max(len(t) - 3, 1)
+    return v0 if cruise - rss > k * k * noise else None
+
+
+def remeasured(samples: list, gain_m: float):
+    """The odometer measured its steps since the fresh start again (a better tilt): the samples the
+    speed after the gap is taken from gain it too, in proportion to the distance each had covered
+    (a scale error), so that the correction is not read as speed."""
+    if gain_m and len(samples) > 1 and samples[-1][1] != samples[0][1]:
+        d0, span = samples[0][1], samples[-1][1] - samples[0][1]
+        samples[:] = [(t, d + gain_m * (d - d0) / span) for t, d in samples]
+    return samples

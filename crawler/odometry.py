@@ -373,12 +373,12 @@ class Odometer:
 
     def _lost(self, img, t_s, n_tracked, n_visible) -> Estimate:
         """No consensus: hold the distance, keep the keyframe a while, else start from this frame."""
-        self.lost_frames += 1
-        self._prev_pts = None
+        self.lost_frames, self._prev_pts = self.lost_frames + 1, None
         if self._unmeasured_since is None:
             self._unmeasured_since = t_s
         renewed = False
-        if self.lost_frames > self.params.max_lost_frames or n_visible < self.params.min_tracks:
+        p = self.params
+        if self.lost_frames > p.max_lost_frames or t_s - self._last_good_t > p.max_lost_s or n_visible < p.min_tracks:
             renewed = self._new_keyframe(img, t_s)
             # the crawler goes on at about the speed it had: the next guess starts there
             self._velocity = self._gates.v_ref or 0.0

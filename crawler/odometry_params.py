@@ -21,6 +21,7 @@ class OdometryParams:
     entry_side_px: float = 2.0        # ...once the wall moves this many rows per frame
     max_baseline_px: float = 120.0    # new keyframe when features moved this far (perspective change)
     max_lost_frames: int = 15         # keep hoping for the old keyframe this long, then start afresh
+    max_lost_s: float = 0.5           # ...or this long since the last tracked frame (frames that never came count)
     retry_share: float = 0.6          # fewer of the visible features tracked: retry with the global shift
     min_response: float = 0.03        # weakest phase-correlation peak trusted as a first guess
     speed_window_s: float = 0.25      # least-squares speed over this much recent history

@@ -331,6 +331,17 @@ def test_a_crawler_still_speeding_up_after_a_stop_in_a_gap_says_when_it_started(
     assert d[-1] == pytest.approx(truth(t[-1]), abs=3e-3)
 
 
+def test_a_start_seen_two_frames_before_it_cruises_is_read_at_the_drive_s_rate():
+    # braking at 1 m/s^2 into a 1.2 s gap, a stand, then speeding up at the same rate from 2.92 s:
+    # seen again at 3.2 s at 0.28 m/s, cruising at 0.3 two frames later. Too short a ramp for its
+    # own rate, but at the braking's rate it dates the start: not the middle of the stands possible
+    # (0.12 m more than it went), and a crawler that stood through the gap is not read as moving
+    for start_at, seen in ((2.92, 3.2), (3.3, 3.2)):
+        truth = brake_stand_go(0.3, 1.8, 1.0, start_at, 1.0)   # stands at 0.585 m from 2.1 s
+        t, d, s, br = drive(truth, [(2.0, seen)], 4.0)
+        assert d[-1] == pytest.approx(truth(t[-1]), abs=4e-3) and abs(d[-1] - truth(t[-1])) < s[-1]
+
+
 def test_noise_on_a_constant_speed_is_not_read_as_a_brake_or_a_push():
     # 1 mm of white noise on every measured distance at 0.3 m/s: the ramp fit before the gap
     # finds no rate 3 sigma clear of it, and the blind second is carried at the speed
