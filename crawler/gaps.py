@@ -35,10 +35,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from .motionfit import ramp as _ramp
-from .motionfit import ramp_at as _ramp_at
-from .motionfit import remeasured as _remeasured
-from .motionfit import slope as _slope
+from .motionfit import ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured, slope as _slope
 
 
 @dataclass(frozen=True)
@@ -76,6 +73,7 @@ class _Gap:
     v0: float | None                  # speed then (None: never measured)
     a0: float                         # acceleration then (0 if unknown)
     sa: float = 0.0                   # ...and its 1-sigma error
+    up: float = 0.0                   # the rate of a crawler speeding up into it: not carried, it settles it
 
 
 class GapBridge:
@@ -144,8 +142,10 @@ class GapBridge:
         v_back, a, sa = _ramp(ts, ds, self.p.min_history_s)
         rate = self._ramp_rate(a, sa)
         again = self._remeasured_at is not None and self._remeasured_at >= h[0][0]
-        if again or rate is None or a * v_back < 0:
+        if again or rate is None:
             return _slope(ts, ds), 0.0, 0.0
+        if a * v_back < 0:            # speeding up: the speed at t0, not the window's mean, which lags
+            return -v_back, 0.0, 0.0, abs(rate)
         return -v_back, rate, sa
 
     def _ramp_rate(self, a: float, sa: float) -> float | None:
@@ -160,11 +160,9 @@ class GapBridge:
         stops (it does not reverse); beyond max_bridge_s the speed fades out."""
         if g.v0 is None:
             return 0.0
-        m = self.p.max_bridge_s
-        v0, a = g.v0, g.a0
+        m, v0, a = self.p.max_bridge_s, g.v0, g.a0
         if a and v0 * a < 0 and -v0 / a < T:          # braking: stops inside the gap
-            ts = -v0 / a
-            return v0 * ts + 0.5 * a * ts * ts
+            return -0.5 * v0 * v0 / a
         T_eff = T if T <= m else m + (T - m) * max(0.0, 1 - (T - m) / m) / 2
         return v0 * T_eff + 0.5 * a * min(T, m) ** 2
 
@@ -382,18 +380,20 @@ class GapBridge:
             return self._travel(g, T) + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
         if stop is not None:
             return self._travel(g, T), 0.0    # stopped, and still stopped
-        trapezoid = 0.5 * (g.v0 + v1) * T     # a constant acceleration over the gap
-        # ...but the speed changed at a moment the video does not show: anywhere from at once to
-        # at the last (uniform: range^2 / 12); or, in a gap long enough to brake to a stop and
-        # start again, a stand the video does not show either (an operator stops to look):
-        # anything down to braking and starting at the crawler's best. Even odds of driving through
-        # and of a stand of any length: an error uniform over that range half the time (range^2 / 6)
+        guess = 0.5 * (g.v0 + v1) * T         # a constant acceleration over the gap; speeding up into
+        gain = abs(v1) - abs(g.v0)            # it, on at the rate seen up to the speed after, then cruising
+        if g.up and g.v0 * v1 > 0 and 0 < gain < g.up * T:
+            guess = math.copysign(abs(g.v0) * T + gain * (T - 0.5 * gain / g.up), v1)
+        # ...but the speed changed at a moment the video does not show: anywhere from at once to at
+        # the last (uniform: range^2 / 12); or, in a gap long enough to brake to a stop and start again,
+        # a stand the video does not show either (an operator stops to look): anything down to braking
+        # and starting at the crawler's best. Even odds of driving through and of a stand of any length
         a, v0 = self.p.max_accel_m_s2, g.v0
         when = max(0.0, abs(v0 - v1) * T - abs(v0 * v0 - v1 * v1) / a) ** 2 / 12.0
         if v0 * v1 >= 0 and T > (abs(v0) + abs(v1)) / a:
             least = math.copysign((v0 * v0 + v1 * v1) / (2 * a), v0 + v1)
-            return trapezoid, max(when, (trapezoid - least) ** 2 / 6.0)
-        return trapezoid, when
+            return guess, max(when, (guess - least) ** 2 / 6.0)
+        return guess, when
 
 
 _TIME_EPS = 1e-6                  # frame times are sums of intervals: 3 / 30 s may come out under 0.1 s

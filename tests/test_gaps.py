@@ -342,6 +342,19 @@ def test_a_start_seen_two_frames_before_it_cruises_is_read_at_the_drive_s_rate()
         assert d[-1] == pytest.approx(truth(t[-1]), abs=4e-3) and abs(d[-1] - truth(t[-1])) < s[-1]
 
 
+def test_a_crawler_speeding_up_into_a_gap_goes_on_at_that_rate_up_to_the_speed_after():
+    # from rest at 1.0 s at 0.8 m/s^2 up to 0.3 m/s (at 1.375 s), blind from 1.25 s (0.2 m/s) to
+    # 1.9 s. The window's mean speed lags the ramp (~0.13 m/s), and a constant acceleration from
+    # there to 0.3 puts the gap 30 mm short; the ramp seen, carried on to the speed after, does not
+    def truth(t):
+        ramp = min(max(t - 1.0, 0.0), 0.375)
+        return 0.4 * ramp * ramp + 0.3 * max(t - 1.375, 0.0)
+
+    t, d, s, br = drive(truth, [(1.25, 1.9)], 3.0)
+    assert d[-1] == pytest.approx(truth(t[-1]), abs=3e-3)
+    assert abs(d[-1] - truth(t[-1])) < s[-1]
+
+
 def test_noise_on_a_constant_speed_is_not_read_as_a_brake_or_a_push():
     # 1 mm of white noise on every measured distance at 0.3 m/s: the ramp fit before the gap
     # finds no rate 3 sigma clear of it, and the blind second is carried at the speed
