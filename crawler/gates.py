@@ -13,6 +13,10 @@
   is no news of the motion. A camera's own frames always differ (sensor noise), and a moving
   textured wall cannot be copied; a smooth wall under a fixed highlight can, and its copied blocks
   read as a stand. The motion gate cannot tell that from a stop in the gap, so a copy never ends one.
+- Stands: a standstill keeps the picture. Tracks that read no motion while the frame grows less
+  like its keyframe than like the frame before read an encoder that lost the motion (CRF 40 at a
+  recording's start re-codes the still picture frame after frame as the crawler drives), not a stand:
+  sensor noise and light leave both likenesses the same.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ class FrameGates:
         self._refused_since = None    # the first of a run of refused measurements
         self._seen = 0
         self._rows = None             # every 8th row of the last frame, kept only inside a gap
+        self._still = None            # (distance, picture where a stand began, its last frame) at quarter size
 
     def textured(self, energy: float) -> bool:
         ref = self.texture_ref
@@ -59,6 +64,23 @@ class FrameGates:
         if not in_gap or prev is None or prev.shape != rows.shape:
             return False
         return encoder_copy(rows, prev, self.p.dense.min_changed)
+
+    def morphed(self, kf, roi, at_m: float, still_m: float) -> bool:
+        """Does a frame the tracks put within still_m of where the stand began (at_m: its distance)
+        drift away from the picture then? The reference is kept across keyframes a stand renews;
+        costs nothing while the crawler moves: frames are compared only while it stands."""
+        last = self._still
+        if last is not None and abs(at_m - last[0]) >= still_m:
+            last = self._still = None                   # it moved: no stand
+        if abs(at_m - kf.distance) >= still_m:
+            return False
+        small = cv2.resize(roi, (max(1, roi.shape[1] // 4), max(1, roi.shape[0] // 4)), interpolation=cv2.INTER_AREA)
+        if last is None:
+            ref = cv2.resize(kf.img, small.shape[::-1], interpolation=cv2.INTER_AREA)
+            self._still = (kf.distance, ref, small)
+            return False
+        self._still = (last[0], last[1], small)
+        return _likeness(small, last[1]) < _likeness(small, last[2]) - self.p.still_slack
 
     def remember(self, roi, energy: float):
         """A measured frame: what the lit, textured wall looks like lately (the light, which
@@ -121,3 +143,8 @@ class SpreadGate:
 
 def _grey(roi) -> float:
     return float(cv2.mean(roi[::8, ::8])[0])
+
+
+def _likeness(a, b) -> float:
+    """Normalised cross-correlation of two same-sized images (1: the same picture up to light)."""
+    return float(cv2.matchTemplate(a, b, cv2.TM_CCOEFF_NORMED)[0, 0])

@@ -277,22 +277,21 @@ class Odometer:
         return dt <= 0 or self._gates.plausible((c.step - self._last_step) / dt, t_s)
 
     def _measure(self, img, t_s, rescue: bool = True) -> Estimate:
-        idx, pts1, n_visible = self._track_guessed(img, t_s)
-        n_tracked = len(idx)
-        c = self._consensus(idx, pts1, t_s) if n_tracked >= self.params.min_tracks else None
-        clear = c is not None and (not self._resumed or reacquired(c, n_visible, self.params, self.m_per_px))
-        if c is not None and (self._copy or not (self._plausible(c, t_s) and clear)):
+        (idx, pts1, n_visible), p, kf = self._track_guessed(img, t_s), self.params, self._kf
+        c = self._consensus(idx, pts1, t_s) if len(idx) >= p.min_tracks else None
+        clear = c is not None and (not self._resumed or reacquired(c, n_visible, p, self.m_per_px))
+        morphed = c is not None and self._gates.morphed(kf, img, kf.distance + c.step, p.still_px * self.m_per_px)
+        if c is not None and (morphed or self._copy or not (self._plausible(c, t_s) and clear)):
             c = None
-        if c is None:
-            if rescue and self._good_roi is not None and self._kf.t_s < self._last_good_t:
+        if c is None:      # a keyframe the encoder morphed away from is not worn out: no rescue from it
+            if rescue and not morphed and self._good_roi is not None and kf.t_s < self._last_good_t:
                 # the keyframe is worn out (features gone, light changed): start one at the last
                 # tracked frame, whose distance is known, and measure this frame again from there
-                kf = self._kf
                 if self._new_keyframe(self._good_roi, self._last_good_t, owned=True):
                     return self._measure(img, t_s, rescue=False)
                 self._kf = kf
-            return self._lost(img, t_s, n_tracked, n_visible)
-        return self._accept(img, t_s, c, n_tracked)
+            return self._lost(img, t_s, len(idx), n_visible)
+        return self._accept(img, t_s, c, len(idx))
 
     def _accept(self, img, t_s, c: Consensus, n_tracked: int) -> Estimate:
         p, kf, raw = self.params, self._kf, (c.step, c.lat)   # the tracks' own step: what guesses the next
