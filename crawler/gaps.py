@@ -7,8 +7,9 @@ afresh (its distance does not). This stage turns that into a distance that never
 
 - while blind, the distance is carried by a motion model: the speed and acceleration measured just
   before the gap (a crawler that was braking is taken to stop, not to reverse); published `bridged`;
-- after a fresh start, the gap's distance is settled once the speed after it is measured: the
-  trapezoid of the speeds before and after (a constant acceleration over the gap), or, when the
+- after a fresh start, the gap's distance is settled once the speed after it is measured
+  (crawler/gapmodel.py): the trapezoid of the speeds before and after (a constant acceleration over
+  the gap), or a ramp seen at one end carried at its rate to the other end's speed, or, when the
   model had the crawler stop inside the gap, its braking to a stop and a start at the same rate up
   to the speed after, after a stand the video does not show (the middle of the stands possible). A
   gap long enough to stop and start again in may hide a stand the model did not see coming: the
@@ -35,24 +36,8 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+from .gapmodel import BridgeParams, Gap, model_var, settled_travel, stops, travel
 from .motionfit import ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured, slope as _slope
-
-
-@dataclass(frozen=True)
-class BridgeParams:
-    scale_sigma: float = 2e-3         # relative error of one keyframe step (pose jitter, bounce, geometry)
-    step_floor_m: float = 2e-5        # a keyframe step is never known better than this (LK, compression)
-    speed_diffusion: float = 0.02     # m^2/s^3: how fast an unseen speed change grows (a random walk)
-    speed_sigma_m_s: float = 0.005    # 1-sigma error of a measured speed (0.25 s least squares)
-    unknown_speed_m_s: float = 0.5    # 1-sigma speed of a crawler never measured yet (a run starting blind)
-    max_accel_m_s2: float = 1.0       # the model never extrapolates a stronger acceleration
-    history_s: float = 0.3            # speed and acceleration before a gap: fitted over this much
-    min_history_s: float = 0.1        # ...and a speed measured over less than this is no speed at all
-    min_accel_m_s2: float = 0.15      # a fitted acceleration below this is noise: constant speed
-    settle_s: float = 0.25            # after a fresh start, measure the speed this long before settling
-    max_bridge_s: float = 30.0        # beyond this the model is a guess: the speed fades to 0 over it
-    pose_sigma_m: float = 0.0         # the camera's pitching on the car, as wall metres (measurement.py)
-    jitter_memory: float = 0.05       # weight of each frame in the running jitter estimate (~1 s at 30 fps)
 
 
 @dataclass
@@ -66,16 +51,6 @@ class Bridged:
     gap_s: float = 0.0                # how long the current (or just closed) gap is
 
 
-@dataclass
-class _Gap:
-    t0: float                         # the last measured frame before it
-    d0: float                         # the distance published then
-    v0: float | None                  # speed then (None: never measured)
-    a0: float                         # acceleration then (0 if unknown)
-    sa: float = 0.0                   # ...and its 1-sigma error
-    up: float = 0.0                   # the rate of a crawler speeding up into it: not carried, it settles it
-
-
 class GapBridge:
     """Vision distance in, a distance out that is measured where it can be and bridged where not."""
 
@@ -86,7 +61,7 @@ class GapBridge:
         self.var_gaps = 0.0           # closed gaps
         self._kf_vision = None        # the odometer's distance at the current keyframe
         self._hist: deque = deque()   # (t, published distance) of recent measured frames
-        self._gap: _Gap | None = None  # open (blind), or settling after a fresh start
+        self._gap: Gap | None = None  # open (blind), or settling after a fresh start
         self._settling = None         # (t_start, vision distance samples) while the gap settles
         self._restarted = None        # (t, vision distance) of a fresh start inside the open gap: what
                                       # the odometer calls continuous after it is continuous with it only
@@ -155,44 +130,6 @@ class GapBridge:
             return None
         return max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, a))
 
-    def _travel(self, g: _Gap, T: float) -> float:
-        """Distance over T at the speed and acceleration before the gap; a crawler that was braking
-        stops (it does not reverse); beyond max_bridge_s the speed fades out."""
-        if g.v0 is None:
-            return 0.0
-        m, v0, a = self.p.max_bridge_s, g.v0, g.a0
-        if a and v0 * a < 0 and -v0 / a < T:          # braking: stops inside the gap
-            return -0.5 * v0 * v0 / a
-        T_eff = T if T <= m else m + (T - m) * max(0.0, 1 - (T - m) / m) / 2
-        return v0 * T_eff + 0.5 * a * min(T, m) ** 2
-
-    def _stops(self, g: _Gap, T: float) -> float | None:
-        """When the model had the crawler stop inside the gap (s after its start), else None."""
-        if g.v0 is None or not g.a0 or g.v0 * g.a0 >= 0 or -g.v0 / g.a0 >= T:
-            return None
-        return -g.v0 / g.a0
-
-    def _model_var(self, T: float, v0: float | None, settled: bool = False, sa: float = 0.0) -> float:
-        """Variance of a gap of T carried by the model. The speed wanders like a random walk the
-        camera did not see (variance speed_diffusion * t): its integral over the gap has variance
-        q T^3 / 3 with only the speed before known, q T^3 / 12 once the speed after settles it (a
-        Brownian bridge). Add the measured speeds' own errors, or, for a run that starts blind,
-        no speed at all."""
-        q, sv = self.p.speed_diffusion, self.p.speed_sigma_m_s
-        if v0 is None:
-            sv = self.p.unknown_speed_m_s
-        if settled:
-            return 0.5 * (sv * T) ** 2 + q * T ** 3 / 12.0
-        return (sv * T) ** 2 + q * T ** 3 / 3.0 + self._stand_var(T, v0) + (0.5 * sa * T * T) ** 2
-
-    def _stand_var(self, T: float, v0: float | None) -> float:
-        """Blind longer than it takes to brake, the crawler may stand (an operator stops to look):
-        even odds of that, anywhere from braking at its best to driving on (range^2 / 6)."""
-        a = self.p.max_accel_m_s2
-        if v0 is None or T <= abs(v0) / a:
-            return 0.0
-        return (abs(v0) * T - v0 * v0 / (2 * a)) ** 2 / 6.0
-
     # -- blind ----------------------------------------------------------------------------------------
 
     def _blind(self, est) -> Bridged:
@@ -203,14 +140,14 @@ class GapBridge:
             if not self._hist:            # never measured yet: nothing to carry
                 return Bridged(self._out_m, self.sigma_m, False, self.p.step_floor_m)
             t0 = self._hist[-1][0]
-            self._gap = _Gap(t0, self._out_m, *self._motion_before(t0))
+            self._gap = Gap(t0, self._out_m, *self._motion_before(t0))
             self._gap_prev_var = 0.0
         g = self._gap
         T = est.t_s - g.t0
-        var = self._model_var(T, g.v0, sa=g.sa)
+        var = model_var(self.p, T, g.v0, sa=g.sa)
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
-        out = g.d0 + self._travel(g, T)
+        out = g.d0 + travel(self.p, g, T)
         jitter = self._jitter_var + self.p.pose_sigma_m ** 2
         return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + jitter), True, step, T)
 
@@ -224,7 +161,7 @@ class GapBridge:
             self._settle_or_reopen()
         if self._gap is None and not est.continuous and self._hist:
             t0 = self._hist[-1][0]            # a fresh start right after a measured frame: a gap of one
-            self._gap = _Gap(t0, self._out_m, *self._motion_before(t0))
+            self._gap = Gap(t0, self._out_m, *self._motion_before(t0))
         if self._gap is not None and self._settling is None:
             gap_T = self._close_gap(est)
         elif self._settling is not None:
@@ -252,7 +189,7 @@ class GapBridge:
         total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var) + jitter
         if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
             g = self._gap
-            total += self._model_var(self._settling[0] - g.t0, g.v0, sa=g.sa)
+            total += model_var(self.p, self._settling[0] - g.t0, g.v0, sa=g.sa)
         # for the fusion: the white part only (the pose term is slow, a filter must not average it)
         noise = math.hypot(self._frame_noise(est), math.sqrt(self._jitter_var))
         return Bridged(self._out_m, math.sqrt(total), False, noise, gap_T)
@@ -298,7 +235,7 @@ class GapBridge:
             # measured since a fresh start inside the gap (the offset was set then): up to that
             # start the gap is the model's, at the speed before it, and so is its uncertainty
             self._gap = None
-            self.var_gaps += self._model_var(restarted[0] - g.t0, g.v0, sa=g.sa)
+            self.var_gaps += model_var(self.p, restarted[0] - g.t0, g.v0, sa=g.sa)
             self._hist.append((restarted[0], restarted[1] + self.offset_m))   # measured again: a speed
         else:                         # a fresh start: provisionally the model's, settled later
             samples = [(est.t_s, est.distance_m)]
@@ -308,7 +245,7 @@ class GapBridge:
             elif since is not None and g.t0 < since[0] < est.t_s:
                 samples.insert(0, since)  # a fresh start that knows its motion over a few frames
             t1, d1 = samples[0]
-            self.offset_m = g.d0 + self._travel(g, t1 - g.t0) - d1
+            self.offset_m = g.d0 + travel(self.p, g, t1 - g.t0) - d1
             self._settling = (t1, samples)
         self._kf_vision = est.distance_m
         return T
@@ -331,7 +268,7 @@ class GapBridge:
             # the gap, a ramp too short for its rate is read at the braking's rate (the drive's)
             ts, ds = [t - t1 for t, _ in samples], [d for _, d in samples]
             v, a, sa = _ramp(ts, ds, self.p.min_history_s)
-            stopped = self._stops(g, t1 - g.t0) is not None
+            stopped = stops(g, t1 - g.t0) is not None
             if (rate := self._ramp_rate(a, sa)) is not None:
                 v_end, a1 = v, rate
             elif stopped and (v := _ramp_at(ts, ds, math.copysign(g.a0, v1))) is not None:
@@ -346,7 +283,7 @@ class GapBridge:
             return
         T = t1 - g.t0
         self._settled_v = (samples[-1][0], v1)
-        corrected, unseen_var = self._settled_travel(g, T, v_end, a1)
+        corrected, unseen_var = settled_travel(self.p, g, T, v_end, a1)
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
         self.offset_m += correction
         self._out_m += correction
@@ -356,44 +293,8 @@ class GapBridge:
                            + [(t, d + self.offset_m) for t, d in samples])
         # both ends known: the trapezoid's residual; only the speed after, or a stop the model
         # guessed inside the gap: as unsure as while blind
-        both = g.v0 is not None and self._stops(g, T) is None
-        self.var_gaps += self._model_var(T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var
+        both = g.v0 is not None and stops(g, T) is None
+        self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var
         self._gap = None
-
-    def _settled_travel(self, g: _Gap, T: float, v1: float, a1: float = 0.0) -> tuple[float, float]:
-        """The gap's distance once the speed after it is known, and the variance of what the video
-        cannot show."""
-        if g.v0 is None:                      # a run that started blind: the speed after, constant
-            return v1 * T, 0.0
-        stop = self._stops(g, T)
-        if stop is not None and abs(v1) > self.p.speed_sigma_m_s and a1 * v1 > 0 and T - v1 / a1 >= stop:
-            # braked to a stop, still speeding up when seen again: it started from rest v1 / a1 before
-            return self._travel(g, T) + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
-        if stop is not None and abs(v1) > self.p.speed_sigma_m_s:
-            # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
-            # How long it stood is not in the video: anything from not at all to all the time left,
-            # so the middle, with that range's uniform variance
-            a = abs(g.a0)
-            ramp = min(abs(v1) / a, T - stop)
-            longest = T - stop - ramp         # the longest it can have stood
-            moved = 0.5 * a * ramp * ramp + abs(v1) * longest / 2
-            return self._travel(g, T) + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
-        if stop is not None:
-            return self._travel(g, T), 0.0    # stopped, and still stopped
-        guess = 0.5 * (g.v0 + v1) * T         # a constant acceleration over the gap; speeding up into
-        gain = abs(v1) - abs(g.v0)            # it, on at the rate seen up to the speed after, then cruising
-        if g.up and g.v0 * v1 > 0 and 0 < gain < g.up * T:
-            guess = math.copysign(abs(g.v0) * T + gain * (T - 0.5 * gain / g.up), v1)
-        # ...but the speed changed at a moment the video does not show: anywhere from at once to at
-        # the last (uniform: range^2 / 12); or, in a gap long enough to brake to a stop and start again,
-        # a stand the video does not show either (an operator stops to look): anything down to braking
-        # and starting at the crawler's best. Even odds of driving through and of a stand of any length
-        a, v0 = self.p.max_accel_m_s2, g.v0
-        when = max(0.0, abs(v0 - v1) * T - abs(v0 * v0 - v1 * v1) / a) ** 2 / 12.0
-        if v0 * v1 >= 0 and T > (abs(v0) + abs(v1)) / a:
-            least = math.copysign((v0 * v0 + v1 * v1) / (2 * a), v0 + v1)
-            return guess, max(when, (guess - least) ** 2 / 6.0)
-        return guess, when
-
 
 _TIME_EPS = 1e-6                  # frame times are sums of intervals: 3 / 30 s may come out under 0.1 s

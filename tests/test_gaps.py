@@ -355,6 +355,15 @@ def test_a_crawler_speeding_up_into_a_gap_goes_on_at_that_rate_up_to_the_speed_a
     assert abs(d[-1] - truth(t[-1])) < s[-1]
 
 
+def test_a_brake_seen_after_a_gap_began_inside_it_at_its_rate():
+    # cruising at 0.4 m/s into a 0.9 s gap, braking at 1 m/s^2 from 2.7 s: seen again at 2.9 s at
+    # 0.2 m/s, still braking. A constant deceleration over the whole gap puts it 70 mm short; the
+    # brake seen, taken back at its rate to the speed before, began 0.2 s before the gap's end
+    truth = brake_stand_go(0.4, 2.7, 1.0, 99.0, 1.0)
+    t, d, s, br = drive(truth, [(2.0, 2.9)], 4.0)
+    assert d[-1] == pytest.approx(truth(t[-1]), abs=5e-3) and abs(d[-1] - truth(t[-1])) < s[-1]
+
+
 def test_noise_on_a_constant_speed_is_not_read_as_a_brake_or_a_push():
     # 1 mm of white noise on every measured distance at 0.3 m/s: the ramp fit before the gap
     # finds no rate 3 sigma clear of it, and the blind second is carried at the speed

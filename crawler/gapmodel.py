@@ -1,0 +1,123 @@
+"""The motion model of one gap the camera did not see, for the gap bridge (gaps.py). Pure.
+
+What a crawler did while blind is read from the speeds, rates and stops seen at its two ends: how
+far it went (`travel` while blind, `settled_travel` once the speed after is known) and how unsure
+that is (`model_var`, `stand_var`). A crawler's drive ramps at a constant rate and cruises; it may
+stand where an operator stops to look.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class BridgeParams:
+    scale_sigma: float = 2e-3         # relative error of one keyframe step (pose jitter, bounce, geometry)
+    step_floor_m: float = 2e-5        # a keyframe step is never known better than this (LK, compression)
+    speed_diffusion: float = 0.02     # m^2/s^3: how fast an unseen speed change grows (a random walk)
+    speed_sigma_m_s: float = 0.005    # 1-sigma error of a measured speed (0.25 s least squares)
+    unknown_speed_m_s: float = 0.5    # 1-sigma speed of a crawler never measured yet (a run starting blind)
+    max_accel_m_s2: float = 1.0       # the model never extrapolates a stronger acceleration
+    history_s: float = 0.3            # speed and acceleration before a gap: fitted over this much
+    min_history_s: float = 0.1        # ...and a speed measured over less than this is no speed at all
+    min_accel_m_s2: float = 0.15      # a fitted acceleration below this is noise: constant speed
+    ramp_dv_m_s: float = 0.05         # a speed change across a gap below this is the fits' error, not a ramp
+    settle_s: float = 0.25            # after a fresh start, measure the speed this long before settling
+    max_bridge_s: float = 30.0        # beyond this the model is a guess: the speed fades to 0 over it
+    pose_sigma_m: float = 0.0         # the camera's pitching on the car, as wall metres (measurement.py)
+    jitter_memory: float = 0.05       # weight of each frame in the running jitter estimate (~1 s at 30 fps)
+
+
+@dataclass
+class Gap:
+    """One gap, as seen at its start."""
+
+    t0: float                         # the last measured frame before it
+    d0: float                         # the distance published then
+    v0: float | None                  # speed then (None: never measured)
+    a0: float                         # acceleration then (0 if unknown)
+    sa: float = 0.0                   # ...and its 1-sigma error
+    up: float = 0.0                   # the rate of a crawler speeding up into it: not carried, it settles it
+
+
+def travel(p: BridgeParams, g: Gap, T: float) -> float:
+    """Distance over T at the speed and acceleration before the gap; a crawler that was braking
+    stops (it does not reverse); beyond max_bridge_s the speed fades out."""
+    if g.v0 is None:
+        return 0.0
+    m, v0, a = p.max_bridge_s, g.v0, g.a0
+    if a and v0 * a < 0 and -v0 / a < T:          # braking: stops inside the gap
+        return -0.5 * v0 * v0 / a
+    T_eff = T if T <= m else m + (T - m) * max(0.0, 1 - (T - m) / m) / 2
+    return v0 * T_eff + 0.5 * a * min(T, m) ** 2
+
+
+def stops(g: Gap, T: float) -> float | None:
+    """When the model had the crawler stop inside the gap (s after its start), else None."""
+    if g.v0 is None or not g.a0 or g.v0 * g.a0 >= 0 or -g.v0 / g.a0 >= T:
+        return None
+    return -g.v0 / g.a0
+
+
+def model_var(p: BridgeParams, T: float, v0: float | None, settled: bool = False, sa: float = 0.0) -> float:
+    """Variance of a gap of T carried by the model. The speed wanders like a random walk the
+    camera did not see (variance speed_diffusion * t): its integral over the gap has variance
+    q T^3 / 3 with only the speed before known, q T^3 / 12 once the speed after settles it (a
+    Brownian bridge). Add the measured speeds' own errors, or, for a run that starts blind,
+    no speed at all."""
+    q, sv = p.speed_diffusion, p.speed_sigma_m_s
+    if v0 is None:
+        sv = p.unknown_speed_m_s
+    if settled:
+        return 0.5 * (sv * T) ** 2 + q * T ** 3 / 12.0
+    return (sv * T) ** 2 + q * T ** 3 / 3.0 + stand_var(p, T, v0) + (0.5 * sa * T * T) ** 2
+
+
+def stand_var(p: BridgeParams, T: float, v0: float | None) -> float:
+    """Blind longer than it takes to brake, the crawler may stand (an operator stops to look):
+    even odds of that, anywhere from braking at its best to driving on (range^2 / 6)."""
+    a = p.max_accel_m_s2
+    if v0 is None or T <= abs(v0) / a:
+        return 0.0
+    return (abs(v0) * T - v0 * v0 / (2 * a)) ** 2 / 6.0
+
+
+def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0) -> tuple[float, float]:
+    """The gap's distance once the speed after it is known, and the variance the video cannot show."""
+    if g.v0 is None:                      # a run that started blind: the speed after, constant
+        return v1 * T, 0.0
+    stop = stops(g, T)
+    if stop is not None and abs(v1) > p.speed_sigma_m_s and a1 * v1 > 0 and T - v1 / a1 >= stop:
+        # braked to a stop, still speeding up when seen again: it started from rest v1 / a1 before
+        return travel(p, g, T) + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
+    if stop is not None and abs(v1) > p.speed_sigma_m_s:
+        # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
+        # How long it stood is not in the video: anything from not at all to all the time left,
+        # so the middle, with that range's uniform variance
+        a = abs(g.a0)
+        ramp = min(abs(v1) / a, T - stop)
+        longest = T - stop - ramp         # the longest it can have stood
+        moved = 0.5 * a * ramp * ramp + abs(v1) * longest / 2
+        return travel(p, g, T) + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
+    if stop is not None:
+        return travel(p, g, T), 0.0    # stopped, and still stopped
+    # a constant acceleration over the gap; but a ramp seen at one end goes on at its rate to the
+    # other end's speed, when the change is more than the speeds' own errors could make
+    guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0
+    ramped = abs(dv) >= p.ramp_dv_m_s
+    if ramped and g.up and g.v0 * v1 > 0 and 0 < gain < g.up * T:     # speeding up into it, then cruising
+        guess = math.copysign(abs(g.v0) * T + gain * (T - 0.5 * gain / g.up), v1)
+    elif ramped and a1 and dv * a1 > 0 and abs(dv) < abs(a1) * T:   # cruising, then the ramp seen after it
+        guess = g.v0 * T + 0.5 * dv * abs(dv / a1)
+    # ...but the speed changed at a moment the video does not show: anywhere from at once to at
+    # the last (uniform: range^2 / 12); or, in a gap long enough to brake to a stop and start again,
+    # a stand the video does not show either (an operator stops to look): anything down to braking
+    # and starting at the crawler's best. Even odds of driving through and of a stand of any length
+    a, v0 = p.max_accel_m_s2, g.v0
+    when = max(0.0, abs(dv) * T - abs(v0 * v0 - v1 * v1) / a) ** 2 / 12.0
+    if v0 * v1 >= 0 and T > (abs(v0) + abs(v1)) / a:
+        least = math.copysign((v0 * v0 + v1 * v1) / (2 * a), v0 + v1)
+        return guess, max(when, (guess - least) ** 2 / 6.0)
+    return guess, when
