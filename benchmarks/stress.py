@@ -1,7 +1,7 @@
 """Stress suite for "never lose distance": hw_sim runs with one hard disturbance each, replayed by crawlerd.
 
     python benchmarks/stress.py [--out DIR] [--jobs N] [--cases a,b] [--markdown] [--set SECTION.KEY=VALUE]
-                                [--reseed N] [--wall skimage:brick|IMAGE] [--held-out]
+                                [--reseed N] [--wall skimage:brick|IMAGE] [--held-out | --probes]
 
 Each case renders once (cached in --out; the .csv keeps the true tilt, camera height, LED light, wet
 share and lost frames per frame) and is replayed with crawlerd's Daemon as `crawlerd --replay` would
@@ -72,6 +72,37 @@ for _name, (_base, _change) in HELD_OUT.items():
 MAIN = [n for n in CASES if n not in HELD_OUT]
 
 
+def _wall(name: str) -> dict:
+    return dict(texture="image", texture_image=f"skimage:{name}", image_mm_per_px=0.4)
+
+
+# probes (--probes): stands, reversals and ramps inside gaps, on photographed walls; each found a fault
+PROBES = {
+    "probe-drop-stopgo-24deg-0.3": dict(tilt_deg=24, profile="stopgo", speed_m_s=0.3, accel_m_s2=0.5,
+                                        stopgo_period_s=4.0, stopgo_dwell_s=1.0, duration_s=16, seed=306,
+                                        dropped_bursts=((2.5, 3.4), (6.8, 7.3), (11.0, 12.5)), texture="masonry",
+                                        crf=30),
+    "probe-reverse-all-brick-24deg-0.4": dict(tilt_deg=24, profile="reverse", speed_m_s=0.4, accel_m_s2=1.0,
+                                              duration_s=15, seed=301, crf=35, wet_patches=((1.9, 2.3),),
+                                              led_blackouts=((9.0, 9.6),), dropped_bursts=((12.0, 12.5),),
+                                              exposure_ms=2.0, **SHAKE, **LIT, **_wall("brick")),
+    "probe-stopgo-wet-gravel-0deg-0.3": dict(tilt_deg=0, profile="stopgo", speed_m_s=0.3, accel_m_s2=0.8,
+                                             stopgo_period_s=3.0, stopgo_dwell_s=0.7, duration_s=12, seed=404,
+                                             wet_patches=((0.55, 0.75), (1.6, 1.9)), **LIT, **_wall("gravel")),
+    "probe-stopgo-blackout-grass-40deg-0.4": dict(tilt_deg=40, profile="stopgo", speed_m_s=0.4, accel_m_s2=0.6,
+                                                  stopgo_period_s=4.0, stopgo_dwell_s=1.2, duration_s=16,
+                                                  seed=406, led_blackouts=((2.5, 3.9), (10.9, 12.3)),
+                                                  exposure_ms=2.0, **LIT, **_wall("grass")),
+    "probe-accel-drops-grass-24deg-60fps": dict(tilt_deg=24, profile="accel", speed_m_s=0.6, accel_m_s2=0.1,
+                                                duration_s=10, fps=60, seed=403, **SHAKE, **_wall("grass"),
+                                                dropped_bursts=((2.0, 2.4), (5.0, 5.6), (8.0, 8.2))),
+    "probe-slow-blackout-wet-brick-40deg-0.05": dict(tilt_deg=40, speed_m_s=0.05, duration_s=16, seed=402,
+                                                     wet_patches=((0.3, 0.4),), led_blackouts=((2.0, 3.0),
+                                                     (11.0, 11.4)), exposure_ms=2.0, **LIT, **_wall("brick")),
+}
+CASES.update({name: (fields, []) for name, fields in PROBES.items()})
+
+
 def replay(h264: Path, overrides: list[str], log: Path) -> dict:
     from crawler import settings
     from crawler.service import Mode, RunOptions, Service
@@ -133,6 +164,8 @@ def main(argv=None):
                     help="add this to every case's seed: the same disturbances on another wall (a held-out check)")
     ap.add_argument("--held-out", action="store_true",
                     help="the held-out variants instead: the same disturbances at other tilts and speeds")
+    ap.add_argument("--probes", action="store_true",
+                    help="the probe runs instead: stands, reversals and ramps inside gaps on photographed walls")
     ap.add_argument("--wall", metavar="IMAGE",
                     help="every case on this photographed wall instead of its own texture: a grey image "
                          "file, or skimage:brick|gravel|grass (a held-out check)")
@@ -140,9 +173,12 @@ def main(argv=None):
     out = Path(args.out) if not args.reseed else Path(args.out) / f"reseed{args.reseed}"
     if args.wall:
         out = out / ("wall-" + Path(args.wall.split(":")[-1]).stem)
+    if args.probes:
+        out = out / "probes"
 
     out.mkdir(parents=True, exist_ok=True)
-    names = args.cases.split(",") if args.cases else list(HELD_OUT) if args.held_out else MAIN
+    names = (args.cases.split(",") if args.cases else list(HELD_OUT) if args.held_out
+             else list(PROBES) if args.probes else MAIN)
     t0 = time.time()
     rows = []
     with ProcessPoolExecutor(args.jobs) as pool:
