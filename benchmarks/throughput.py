@@ -145,7 +145,8 @@ def timing(args, name, window, h264, meta):
     link.close()
     stages = {k: v / len(frames) for k, v in st.ns.items()}
     stages["projection + estimation"] = total - sum(stages.values())
-    err = 100 * (odo.distance - meta["true_distance_m"]) / meta["path_length_m"]
+    path = meta["path_length_m"]
+    err = 100 * (odo.distance - meta["true_distance_m"]) / path if path else 0.0
     return {"case": name, "frames": len(frames), "decode_ms": decode_ns / 1e6, "odometry_ms": total / 1e6,
             "stages_ms": {k: v / 1e6 for k, v in stages.items()}, "publish_ms": pub_ns / 1e6,
             "fps_odometry": 1e9 / total, "error_pct": err}
@@ -245,7 +246,8 @@ def _arm_runs(args, window, h264, tmp: Path) -> dict:
     short, long = one(n1, False), one(n2, False)
     guest = json.loads(long.stdout)
     true_m = float(h264.with_suffix(".csv").read_text().splitlines()[n2].split(",")[2])
-    guest["error_pct"] = 100 * (guest["distance_m"] - true_m) / true_m
+    guest["error_mm"] = 1000 * (guest["distance_m"] - true_m)     # a standing crawler has no path to divide by
+    guest["error_pct"] = 100 * (guest["distance_m"] - true_m) / true_m if true_m else None
     r = {"arm_per_frame": ay.slope(short, long, n2 - n1), "guest": guest}
     if args.arm_stages:
         ms, ml = one(n1, True), one(n2, True)
@@ -283,7 +285,8 @@ def print_arm(r: dict):
     g = r["guest"]
     print(f"    ARM: odometry {r['arm_per_frame'] / 1e6:.2f} M instructions/frame (slope {ARM_FRAMES[0]}"
           f"->{ARM_FRAMES[1]} frames)  ->  Pi 2 estimate {ay.pi2_fps(r['arm_per_frame']):.0f} fps on one core"
-          f"  [{g['keyframes']} keyframes, {g['lost']} lost in {g['frames']} frames, error {g['error_pct']:+.4f} %]")
+          f"  [{g['keyframes']} keyframes, {g['lost']} lost in {g['frames']} frames, error "
+          + (f"{g['error_pct']:+.4f} %]" if g["error_pct"] is not None else f"{g['error_mm']:+.3f} mm]"))
     if "stages" not in r:
         return
     groups = ("OpenCV", "numpy", "Python", "libc/libm", "other")

@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections import deque
 
 import cv2
+import numpy as np
 
 from .consensus import median
 from .flow import encoder_copy
@@ -46,7 +47,7 @@ class FrameGates:
         self._refused_since = None    # the first of a run of refused measurements
         self._seen = 0
         self._rows = None             # every 8th row of the last frame, kept only inside a gap
-        self._still = None            # (distance, picture where a stand began, its last frame) at quarter size
+        self._still = None            # (distance, picture where a stand began, its last frame's): _picture
 
     def textured(self, energy: float) -> bool:
         ref = self.texture_ref
@@ -74,13 +75,12 @@ class FrameGates:
             last = self._still = None                   # it moved: no stand
         if abs(at_m - kf.distance) >= still_m:
             return False
-        small = cv2.resize(roi, (max(1, roi.shape[1] // 4), max(1, roi.shape[0] // 4)), interpolation=cv2.INTER_AREA)
+        cur = _picture(roi)
         if last is None:
-            ref = cv2.resize(kf.img, small.shape[::-1], interpolation=cv2.INTER_AREA)
-            self._still = (kf.distance, ref, small)
+            self._still = (kf.distance, _picture(kf.img), cur)
             return False
-        self._still = (last[0], last[1], small)
-        return _likeness(small, last[1]) < _likeness(small, last[2]) - self.p.still_slack
+        self._still = (last[0], last[1], cur)
+        return float(cur.dot(last[1])) < float(cur.dot(last[2])) - self.p.still_slack
 
     def remember(self, roi, energy: float):
         """A measured frame: what the lit, textured wall looks like lately (the light, which
@@ -145,6 +145,13 @@ def _grey(roi) -> float:
     return float(cv2.mean(roi[::8, ::8])[0])
 
 
-def _likeness(a, b) -> float:
-    """Normalised cross-correlation of two same-sized images (1: the same picture up to light)."""
-    return float(cv2.matchTemplate(a, b, cv2.TM_CCOEFF_NORMED)[0, 0])
+def _picture(img) -> np.ndarray:
+    """The middle of a frame (half its width and height) at quarter size, as a zero-mean unit vector:
+    the dot product of two is their normalised cross-correlation (1: the same picture up to light
+    and gain). The middle only: shrinking the whole 240 x 240 window cost 0.6 M ARM instructions."""
+    h, w = img.shape
+    mid = img[h // 4:h // 4 + max(4, h // 2), w // 4:w // 4 + max(4, w // 2)]
+    small = cv2.resize(mid, (max(1, mid.shape[1] // 4), max(1, mid.shape[0] // 4)), interpolation=cv2.INTER_AREA)
+    v = small.ravel().astype(np.float32)
+    v -= v.mean()
+    return v / max(float(np.linalg.norm(v)), 1e-6)
