@@ -27,10 +27,15 @@ SHAKE = dict(bounce_mm=1.0, pitch_jitter_deg=0.3, roll_deg=2.0, sway_mm=1.5)
 LIT = dict(lighting=True, vignetting=True, noise_sigma=1.5)
 
 
+def wall_image(image: str) -> dict:
+    """hw_sim fields for a photographed wall: a grey image file or skimage:brick|gravel|grass."""
+    return dict(texture="image", texture_image=image, image_mm_per_px=0.4)
+
+
 def photo() -> dict:
     """A photographic wall (scikit-image's gravel) if scikit-image is installed, else masonry."""
     if importlib.util.find_spec("skimage") is not None:
-        return dict(texture="image", texture_image="skimage:gravel", image_mm_per_px=0.4)
+        return wall_image("skimage:gravel")
     print("stress: scikit-image missing (pip install -e '.[textures]'): the photo case uses masonry",
           file=sys.stderr)
     return dict(texture="masonry")
@@ -72,10 +77,6 @@ for _name, (_base, _change) in HELD_OUT.items():
 MAIN = [n for n in CASES if n not in HELD_OUT]
 
 
-def _wall(name: str) -> dict:
-    return dict(texture="image", texture_image=f"skimage:{name}", image_mm_per_px=0.4)
-
-
 # probes (--probes): stands, reversals and ramps inside gaps, on photographed walls; each found a fault
 PROBES = {
     "probe-drop-stopgo-24deg-0.3": dict(tilt_deg=24, profile="stopgo", speed_m_s=0.3, accel_m_s2=0.5,
@@ -85,20 +86,22 @@ PROBES = {
     "probe-reverse-all-brick-24deg-0.4": dict(tilt_deg=24, profile="reverse", speed_m_s=0.4, accel_m_s2=1.0,
                                               duration_s=15, seed=301, crf=35, wet_patches=((1.9, 2.3),),
                                               led_blackouts=((9.0, 9.6),), dropped_bursts=((12.0, 12.5),),
-                                              exposure_ms=2.0, **SHAKE, **LIT, **_wall("brick")),
+                                              exposure_ms=2.0, **SHAKE, **LIT, **wall_image("skimage:brick")),
     "probe-stopgo-wet-gravel-0deg-0.3": dict(tilt_deg=0, profile="stopgo", speed_m_s=0.3, accel_m_s2=0.8,
                                              stopgo_period_s=3.0, stopgo_dwell_s=0.7, duration_s=12, seed=404,
-                                             wet_patches=((0.55, 0.75), (1.6, 1.9)), **LIT, **_wall("gravel")),
+                                             wet_patches=((0.55, 0.75), (1.6, 1.9)), **LIT,
+                                             **wall_image("skimage:gravel")),
     "probe-stopgo-blackout-grass-40deg-0.4": dict(tilt_deg=40, profile="stopgo", speed_m_s=0.4, accel_m_s2=0.6,
                                                   stopgo_period_s=4.0, stopgo_dwell_s=1.2, duration_s=16,
                                                   seed=406, led_blackouts=((2.5, 3.9), (10.9, 12.3)),
-                                                  exposure_ms=2.0, **LIT, **_wall("grass")),
+                                                  exposure_ms=2.0, **LIT, **wall_image("skimage:grass")),
     "probe-accel-drops-grass-24deg-60fps": dict(tilt_deg=24, profile="accel", speed_m_s=0.6, accel_m_s2=0.1,
-                                                duration_s=10, fps=60, seed=403, **SHAKE, **_wall("grass"),
+                                                duration_s=10, fps=60, seed=403, **SHAKE, **wall_image("skimage:grass"),
                                                 dropped_bursts=((2.0, 2.4), (5.0, 5.6), (8.0, 8.2))),
     "probe-slow-blackout-wet-brick-40deg-0.05": dict(tilt_deg=40, speed_m_s=0.05, duration_s=16, seed=402,
-                                                     wet_patches=((0.3, 0.4),), led_blackouts=((2.0, 3.0),
-                                                     (11.0, 11.4)), exposure_ms=2.0, **LIT, **_wall("brick")),
+                                                     wet_patches=((0.3, 0.4),), exposure_ms=2.0,
+                                                     led_blackouts=((2.0, 3.0), (11.0, 11.4)), **LIT,
+                                                     **wall_image("skimage:brick")),
 }
 CASES.update({name: (fields, []) for name, fields in PROBES.items()})
 
@@ -137,7 +140,7 @@ def measure(args) -> dict:
     fields, extra = CASES[name]
     fields = {**fields, "seed": fields["seed"] + reseed}     # another wall, shake and noise, same physics
     if wall:                                                 # ...or a photograph of a real one
-        fields = {**fields, "texture": "image", "texture_image": wall, "image_mm_per_px": 0.4}
+        fields = {**fields, **wall_image(wall)}
     t0 = time.perf_counter()
     meta = json.loads(render(out, name, fields).read_text())
     t1 = time.perf_counter()
