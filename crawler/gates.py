@@ -14,9 +14,9 @@
   textured wall cannot be copied; a smooth wall under a fixed highlight can, and its copied blocks
   read as a stand. The motion gate cannot tell that from a stop in the gap, so a copy never ends one.
 - Stands: a standstill keeps the picture. Tracks that read no motion while the frame grows less
-  like its keyframe than like the frame before read an encoder that lost the motion (CRF 40 at a
-  recording's start re-codes the still picture frame after frame as the crawler drives), not a stand:
-  sensor noise and light leave both likenesses the same.
+  like the picture where the stand began than like the frame before read an encoder that lost the
+  motion (CRF 40 at a recording's start re-codes the still picture frame after frame as the crawler
+  drives), not a stand: sensor noise and light leave both likenesses the same.
 """
 
 from __future__ import annotations
