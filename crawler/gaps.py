@@ -261,18 +261,19 @@ class GapBridge:
         span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
         enough = span >= self.p.min_history_s - _TIME_EPS
         v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if enough else None
-        v_end, a1 = v1, 0.0
+        v_end, a1, T = v1, 0.0, t1 - g.t0
+        stopped = stops(g, T) is not None
         if v1 is not None and len(samples) >= 5 and span >= 0.5 * self.p.history_s:
             # speeding up or slowing down since it was seen again: the speed at the gap's end, and
             # the rate (a crawler still speeding up started not long before). After a stop inside
             # the gap, a ramp too short for its rate is read at the braking's rate (the drive's)
             ts, ds = [t - t1 for t, _ in samples], [d for _, d in samples]
             v, a, sa = _ramp(ts, ds, self.p.min_history_s)
-            stopped = stops(g, t1 - g.t0) is not None
+            drive = math.copysign(g.a0, v1)       # the braking's rate, the way it moves after
             if (rate := self._ramp_rate(a, sa)) is not None:
                 v_end, a1 = v, rate
-            elif stopped and (v := _ramp_at(ts, ds, math.copysign(g.a0, v1))) is not None:
-                v_end, a1 = v, math.copysign(g.a0, v1)
+            elif stopped and (v := _ramp_at(ts, ds, drive)) is not None:
+                v_end, a1 = v, drive
             if stopped and v_end * v1 <= 0:       # a speed at t1 against the motion after: it stood then
                 v_end, a1 = 0.0, 0.0
         if v1 is None:                # reopen: drop what the short measurement added to the history
@@ -281,7 +282,6 @@ class GapBridge:
             self._out_m = g.d0
             self._restarted = samples[0]
             return
-        T = t1 - g.t0
         self._settled_v = (samples[-1][0], v1)
         corrected, unseen_var = settled_travel(self.p, g, T, v_end, a1)
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
@@ -293,7 +293,7 @@ class GapBridge:
                            + [(t, d + self.offset_m) for t, d in samples])
         # both ends known: the trapezoid's residual; only the speed after, or a stop the model
         # guessed inside the gap: as unsure as while blind
-        both = g.v0 is not None and stops(g, T) is None
+        both = g.v0 is not None and not stopped
         self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var
         self._gap = None
 
