@@ -5,8 +5,10 @@ The tilt shows in how far and near features disagree on one step (for a cylinder
 each row sees depend on the tilt). From a cold start, or after a step (the operator turned the
 camera), the tilt is searched for with the exact projection over a grid (crawler/tilt.py's
 TiltSearch); once found, each keyframe gives a reading (a parabola through the disagreement at
-three tilts about the estimate, on the frame where its features moved farthest), fused by
-TiltTrack, whose step detector opens the search again. The odometer measures with one mount (the
+three tilts about the estimate, on its closing frame, the next keyframe's first, weighted by how
+far its features moved: the car's pitch and bounce between a keyframe and its close bias the
+reading by their change per step, and those changes telescope), fused by TiltTrack, whose step
+detector opens the search again. The odometer measures with one mount (the
 nominal tilt); the estimate's offset from it is corrected linearly in every step, and when it grows
 beyond `remount_deg` the mount moves: the odometer takes a new keyframe there, and every step of the
 epoch (since the start, or since the step began) is measured again at the new tilt, exactly.
@@ -20,8 +22,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .consensus import robust_step
+from .odometry_params import OdometryParams
 from .posefield import JacobianField
 from .tilt import TiltParams, TiltSearch, TiltTrack
+
+
+MAD_K = OdometryParams.mad_k              # the odometer's inlier gate, in robust sigmas
 
 
 @dataclass(frozen=True)
@@ -30,7 +37,6 @@ class AutoTiltParams:
     acquire_px: float = 40.0          # a frame shows the tilt once its features moved this far
     found_sigma_deg: float = 1.0      # what the search leaves to the readings
     reading_half_deg: float = 0.5     # a reading's three tilts: the estimate and this either side
-    read_every: int = 3               # a reading on every this many frames that show the tilt
     max_hops: int = 400               # steps of an epoch kept to be measured again
     tilt: TiltParams = TiltParams()
 
@@ -90,13 +96,14 @@ class AutoTilt(FixedTilt):
         self.hops: list[Hop] = []
         self._last: Hop | None = None
         self._serial = None
-        self._readings: list = []     # the current keyframe's parabolas (curvature, slope, at)
-        self._frames = 0
+        self._closing = None          # the current keyframe's last frame that shows the tilt: its sample
         self._break_t = -math.inf     # the first measured frame after lost frames
         self._after_break = False
         self.steps = 0
         self._spread = self._scale_spread(self.p.tilt.start_sigma_deg)   # while the search has found nothing
         self._sensitivity = 0.0       # d(distance)/d(tilt) of the epoch's steps, once found
+        # the odometer's inlier floor in metres at the ROI's centre (roughly: a floor, not a measure)
+        self._floor_m = OdometryParams.inlier_floor_px * projection.mount.height_m / camera.fy
 
     @property
     def sigma_rad(self) -> float:
@@ -116,11 +123,10 @@ class AutoTilt(FixedTilt):
             self._read(t_s)
             self._serial = serial
         if moved_px >= self.p.acquire_px:
-            self._frames += 1
             if self.track is None:
                 self._search_step(serial, moved_px, xy_k, xy_c, shutter)
-            elif self._frames % self.p.read_every == 0:
-                self._readings.append(self._reading(xy_k, xy_c, shutter))
+            else:
+                self._closing = (moved_px, xy_k, xy_c, shutter)
         change = self.tau - before
         for hop in self.hops:
             hop.d += hop.g * change
@@ -202,21 +208,19 @@ class AutoTilt(FixedTilt):
         self.tau = found - m.tilt_rad
         # the closed keyframes' samples read again as readings: the search's median spread finds the
         # tilt where a track may be far off; the readings' variance, strays cut, is the sharper measure
-        for key, (_, sample) in self.search.samples.items():
+        for key, (moved_px, sample) in self.search.samples.items():
             if key != serial:
-                self.track.add(*self._reading(*sample), 0.0)
+                self.track.add(*self._reading(moved_px, *sample), 0.0)
                 self.tau = self.track.value - m.tilt_rad
 
     def _read(self, t_s):
-        """The finished keyframe's readings, averaged (its frames saw the car pitch and bounce in
-        different phases; their errors in the features are the same, so the variance is the
-        readings' mean, not less), fused; a step opens the search again."""
-        r = np.array([x for x in self._readings if np.all(np.isfinite(x))]).reshape(-1, 3)
-        self._readings = []
-        if self.track is None or not len(r):
+        """The finished keyframe's reading, on its closing frame, fused; a step opens the search
+        again. Read on the close, not averaged over the keyframe's frames: the next keyframe starts
+        on that frame, so the car's pose at this reading's close is the next one's at its start."""
+        closing, self._closing = self._closing, None
+        if self.track is None or closing is None:
             return
-        a, slope, at = r.mean(axis=0)
-        began = self.track.add(float(a), float(slope), float(at), t_s)
+        began = self.track.add(*self._reading(*closing), t_s)
         if began is None:
             self.tau = self.track.value - self.projection.mount.tilt_rad
             return
@@ -227,15 +231,26 @@ class AutoTilt(FixedTilt):
         self.track = None
         self._spread = self._scale_spread(self.p.tilt.step_sigma_deg)
 
-    def _reading(self, xy_k, xy_c, shutter):
+    def _reading(self, moved_px, xy_k, xy_c, shutter):
         """The parabola through the disagreement at the estimate and either side of it: (curvature,
-        slope at the estimate, the estimate)."""
+        slope at the estimate, the estimate), scaled to weigh by the features' travel. A change of
+        the car's pitch or height between the two frames puts a row profile into the steps: a tilt
+        error of the change over the travel times the geometry's own factor. Weighed by travel,
+        the keyframes' changes sum to the last frame's pose less the first's; weighed alike (the
+        curvature does not grow with the travel) they would add up as a random walk. A sway is
+        taken out of the disagreement: its pattern is unlike a tilt's, and left in, its lateral
+        spread reads as a tilt whichever side the car swayed to (2 mm: 1 deg at 40 deg)."""
         m, kind = self.projection.mount, type(self.projection)
         t0, h = m.tilt_rad + self.tau, math.radians(self.p.reading_half_deg)
         keep = _not_stray(kind(replace(m, tilt_rad=t0)), xy_k, xy_c)
         xy_k, xy_c, shutter = xy_k[keep], xy_c[keep], shutter[keep]
-        c_lo, c0, c_hi = (disagreement(kind(replace(m, tilt_rad=t0 + d)), xy_k, xy_c, shutter) for d in (-h, 0.0, h))
-        return (c_lo + c_hi - 2 * c0) / (2 * h * h), (c_hi - c_lo) / (2 * h), t0
+        f = self.field.at(xy_c)
+        sway = np.concatenate([f[:, 4], f[:, 5]])
+        c_lo, c0, c_hi = (disagreement(kind(replace(m, tilt_rad=t0 + d)), xy_k, xy_c, shutter, sway)
+                          for d in (-h, 0.0, h))
+        a, slope = (c_lo + c_hi - 2 * c0) / (2 * h * h), (c_hi - c_lo) / (2 * h)
+        weight = moved_px / (self.p.acquire_px * a) if a > 0 else 0.0
+        return a * weight, slope * weight, t0
 
     def _measure_again(self, hop: Hop, new) -> float:
         """The hop's step at the new mount: the change in metres. Its pitch and height are kept when
@@ -248,7 +263,7 @@ class AutoTilt(FixedTilt):
         dy = hop.dy + (wk1[:, 1] - wk0[:, 1]) - (wc1[:, 1] - wc0[:, 1])
         jk, jc = self.field.at(hop.xy_k).mean(axis=0), self.field.at(hop.xy_c).mean(axis=0)
         pc, hc, pk, hk = hop.pose
-        d = float(np.mean(dy)) + jk[1] * pk - jc[1] * pc - jc[3] * (hc - hk)
+        d = robust_mean(dy, self._floor_m) + jk[1] * pk - jc[1] * pc - jc[3] * (hc - hk)
         if not math.isfinite(d):
             return 0.0
         change, hop.d, hop.g, hop.projection, hop.dy = d - hop.d, d, float(jk[1] - jc[1]), new, dy
@@ -269,14 +284,30 @@ def _not_stray(projection, xy_k, xy_c, k: float = 6.0) -> np.ndarray:
     return np.all(dev <= k * mad, axis=1)
 
 
-def disagreement(projection, xy_k, xy_c, shutter=None, robust: bool = False) -> float:
+def robust_mean(values: np.ndarray, floor: float) -> float:
+    """The odometer's consensus of one row of steps (crawler/consensus.py): the inliers' mean. A
+    step measured again at a new tilt keeps the tracks chosen at the old one; one that agreed only
+    there (a tilt far off spreads the rows) would pull a plain mean."""
+    return float(robust_step(values[None, :], floor, MAD_K)[0][0])
+
+
+def disagreement(projection, xy_k, xy_c, shutter=None, sway=None, robust: bool = False) -> float:
     """How much the features disagree on one step at this projection, per square metre of step
     (each feature's step over one frame interval: `shutter`, its rolling-shutter factor).
-    Robust (for the search, whose tracks were chosen at a tilt maybe far off): the log of the
-    median spread, so that a frame that agrees sharply somewhere outweighs one with a stray track."""
+    `sway`: the sway's field at the features (lateral rows, then axial), whose pattern is fitted
+    and taken out. Robust (for the search, whose tracks were chosen at a tilt maybe far off): the
+    log of the median spread, so that a frame that agrees sharply somewhere outweighs one with a
+    stray track."""
     d = projection.to_wall(xy_k) - projection.to_wall(xy_c)
     if shutter is not None:
         d = d * shutter[:, None]
+    if sway is not None:
+        scale = float(np.mean(d[:, 1])) ** 2
+        z = (d - d.mean(axis=0)).T.ravel()
+        b = (sway.reshape(2, -1) - sway.reshape(2, -1).mean(axis=1, keepdims=True)).ravel()
+        bb = float(b.dot(b))
+        r = z - b * (float(b.dot(z)) / bb if bb > 0 else 0.0)
+        return float(r.dot(r)) / len(d) / scale if scale > 0 else math.inf
     if not robust:
         scale = float(np.mean(d[:, 1])) ** 2
         return float(np.var(d[:, 1]) + np.var(d[:, 0])) / scale if scale > 0 else math.inf

@@ -64,8 +64,13 @@ class StepDetector:
 class TiltTrack:
     """The tilt once found. Each keyframe gives the parabola of its features' disagreement about the
     estimate; the parabolas are summed, forgetting slowly (a mount that creeps), and the sum's
-    least is the tilt: a keyframe counts by how sharply it shows the tilt. Each keyframe's own
-    least, against the estimate, feeds the step detector and the estimate's scatter."""
+    least is the tilt: a keyframe counts as its parabola says (crawler/autotilt.py weighs it by
+    travel). Each keyframe's own least, against the estimate, feeds the step detector and the
+    estimate's scatter. The estimate's variance is the readings' long-run variance over their
+    count: consecutive readings share a frame (one's close is the next one's start), so a pitch
+    there pushes them apart by as much, and the errors of their mean cancel: the scatter plus twice
+    the lag-one covariance, but at least a tenth of the scatter (the covariance is itself read from
+    few readings)."""
 
     def __init__(self, value: float, params: TiltParams | None = None, sigma: float = 0.0):
         self.p = params or TiltParams()
@@ -73,12 +78,14 @@ class TiltTrack:
         self.ref = self.value = value
         self._a = self._b = 0.0               # summed parabola, in (tilt - ref)
         self._scatter = sigma * sigma         # of one keyframe's least about the estimate
+        self._lag = 0.0                       # ...and the mean product of two consecutive readings' deviations
+        self._dev = None                      # the last reading's deviation
         self._jumped = (0, 0.0)               # the last reading beyond a jump: its side and time
         self._n = 0.0
 
     @property
     def var(self) -> float:
-        return self._scatter / max(self._n, 1.0)
+        return max(self._scatter + 2.0 * self._lag, 0.1 * self._scatter) / max(self._n, 1.0)
 
     def add(self, a: float, slope: float, at: float, t_s: float) -> float | None:
         """A keyframe's parabola: curvature a (per rad^2) and slope at tilt `at`; a step returns
@@ -107,7 +114,11 @@ class TiltTrack:
         self._a = keep * self._a + a
         self._b = keep * self._b + slope - 2 * a * u
         self._n = keep * self._n + 1.0
-        self._scatter += ((least - self.value) ** 2 - self._scatter) / min(self._n + 1.0, 1.0 / (1.0 - keep))
+        dev, rate = least - self.value, min(self._n + 1.0, 1.0 / (1.0 - keep))
+        self._scatter += (dev * dev - self._scatter) / rate
+        if self._dev is not None:
+            self._lag += (dev * self._dev - self._lag) / rate
+        self._dev = dev
         self.value = self.ref - self._b / (2 * self._a)
         return None
 
