@@ -244,8 +244,8 @@ class AutoTilt(FixedTilt):
         t0, h = m.tilt_rad + self.tau, math.radians(self.p.reading_half_deg)
         keep = _not_stray(kind(replace(m, tilt_rad=t0)), xy_k, xy_c)
         xy_k, xy_c, shutter = xy_k[keep], xy_c[keep], shutter[keep]
-        f = self.field.at(xy_c)
-        sway = np.concatenate([f[:, 4], f[:, 5]])
+        sway = self.field.at(xy_c)[:, 4:6]
+        sway = sway - sway.mean(axis=0)
         c_lo, c0, c_hi = (disagreement(kind(replace(m, tilt_rad=t0 + d)), xy_k, xy_c, shutter, sway)
                           for d in (-h, 0.0, h))
         a, slope = (c_lo + c_hi - 2 * c0) / (2 * h * h), (c_hi - c_lo) / (2 * h)
@@ -294,20 +294,18 @@ def robust_mean(values: np.ndarray, floor: float) -> float:
 def disagreement(projection, xy_k, xy_c, shutter=None, sway=None, robust: bool = False) -> float:
     """How much the features disagree on one step at this projection, per square metre of step
     (each feature's step over one frame interval: `shutter`, its rolling-shutter factor).
-    `sway`: the sway's field at the features (lateral rows, then axial), whose pattern is fitted
-    and taken out. Robust (for the search, whose tracks were chosen at a tilt maybe far off): the
-    log of the median spread, so that a frame that agrees sharply somewhere outweighs one with a
-    stray track."""
+    `sway`: the sway's field at the features ((N, 2): d(s, y)/d sway, less its mean), whose
+    pattern is fitted and taken out. Robust (for the search, whose tracks were chosen at a tilt
+    maybe far off): the log of the median spread, so that a frame that agrees sharply somewhere
+    outweighs one with a stray track."""
     d = projection.to_wall(xy_k) - projection.to_wall(xy_c)
     if shutter is not None:
         d = d * shutter[:, None]
     if sway is not None:
         scale = float(np.mean(d[:, 1])) ** 2
-        z = (d - d.mean(axis=0)).T.ravel()
-        b = (sway.reshape(2, -1) - sway.reshape(2, -1).mean(axis=1, keepdims=True)).ravel()
-        bb = float(b.dot(b))
-        r = z - b * (float(b.dot(z)) / bb if bb > 0 else 0.0)
-        return float(r.dot(r)) / len(d) / scale if scale > 0 else math.inf
+        bb, bz = float(np.sum(sway * sway)), float(np.sum(sway * d))
+        left = float(np.var(d[:, 1]) + np.var(d[:, 0])) - (bz * bz / bb if bb > 0 else 0.0) / len(d)
+        return left / scale if scale > 0 else math.inf
     if not robust:
         scale = float(np.mean(d[:, 1])) ** 2
         return float(np.var(d[:, 1]) + np.var(d[:, 0])) / scale if scale > 0 else math.inf
