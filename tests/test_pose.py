@@ -296,13 +296,39 @@ def test_the_pitch_and_height_correct_nothing_while_their_levels_are_learned():
     assert any(f.step_m != 0.0 for f in late)
 
 
+def _keyframe(pose, cam, roi, seen, wall, t, frames, rng, projection=None):
+    """A keyframe of these wall points at t and its next frames at 30 fps (`seen(wall, t)`: their
+    ROI pixels then, 0.05 px of noise), each measured: (frame, consensus) per frame."""
+    from types import SimpleNamespace
+
+    kpx = seen(wall, t)
+    kf = SimpleNamespace(pts=kpx.astype(np.float32), t_s=t, distance=0.0)
+    pose.keyframe(kf, kpx + roi[:2], t)
+    for j in range(1, frames + 1):
+        px = seen(wall, t + j / 30) + rng.normal(0, 0.05, kpx.shape)
+        yield j, _measured(pose, kf, cam, roi, projection or pose.projection, kpx, px, t + j / 30)
+
+
+def _measured(pose, kf, cam, roi, projection, kpx, px, t_s):
+    """One frame measured as the odometer does (every track an inlier, wall positions at the
+    projection it measures with), handed to the pose estimator: the consensus."""
+    from types import SimpleNamespace
+
+    moved = (projection.to_wall(cam.normalise(kpx + roi[:2])) - projection.to_wall(cam.normalise(px + roi[:2]))).T
+    moved *= [[-1.0], [1.0]]
+    idx, both = np.arange(len(px)), np.ones(len(px), bool)
+    c = SimpleNamespace(idx=idx, pts=px.astype(np.float32), tracks=(idx, px, moved, both),
+                        sigma=float(np.std(moved[1])), step=float(moved[1].mean()), lat=float(moved[0].mean()))
+    pose.measure(kf, c, t_s)
+    return c
+
+
 def _weaving_run(params, sway_mm=2.0, tilt_deg=40.0):
     """A car at 0.04 m/s, 30 fps, that weaves sway_mm across the pipe (0.5 Hz) and neither pitches
     nor bounces: exact image points of fixed wall points, measured as the odometer does (wall
     positions at the configured mount). (true pitch of the estimate, its worst pitch, the worst
     error of its corrected step against the truth)."""
     from dataclasses import replace
-    from types import SimpleNamespace
 
     from crawler.geometry import make_projection
     from crawler.measurement import recording_camera, thesis_roi
@@ -324,18 +350,7 @@ def _weaving_run(params, sway_mm=2.0, tilt_deg=40.0):
     for k in range(12):                    # keyframes of 10 frames: 1 cm of wall each
         centre = nominal.to_wall(cam.normalise(np.array([[roi[0] + roi[2] / 2, roi[1] + roi[3] / 2]])))[0]
         wall = centre + rng.uniform(-1, 1, (30, 2)) * [0.012, 0.006] + [0.0, 0.04 * t]
-        kpx = seen(wall, t)
-        kf = SimpleNamespace(pts=kpx.astype(np.float32), t_s=t, distance=0.0)
-        pose.keyframe(kf, kpx + roi[:2], t)
-        for j in range(1, 11):
-            tj = t + j / 30
-            px = seen(wall, tj) + rng.normal(0, 0.05, (30, 2))
-            moved = (nominal.to_wall(cam.normalise(kpx + roi[:2])) - nominal.to_wall(cam.normalise(px + roi[:2]))).T
-            moved *= [[-1.0], [1.0]]
-            idx, both = np.arange(30), np.ones(30, bool)
-            c = SimpleNamespace(idx=idx, pts=px.astype(np.float32), tracks=(idx, px, moved, both),
-                                sigma=float(np.std(moved[1])), step=float(moved[1].mean()), lat=float(moved[0].mean()))
-            pose.measure(kf, c, tj)
+        for j, c in _keyframe(pose, cam, roi, seen, wall, t, 10, rng, nominal):
             pitch.append(abs(math.degrees(pose.s[0])))
             err.append(abs(c.step - 0.04 * j / 30))
         t += 10 / 30
@@ -428,7 +443,6 @@ def _shaking_tilt_run(pitch_deg=0.3, bounce_mm=1.0, sway_mm=2.0, tilt_deg=40.0, 
     positions at the mount it measures with), a keyframe every 6 frames (2 cm). Starts as a
     restarted daemon would, 0.5 deg off; the tilt it ends at, in degrees off the truth."""
     from dataclasses import replace
-    from types import SimpleNamespace
 
     from crawler.geometry import make_projection
     from crawler.measurement import recording_camera, thesis_roi
@@ -456,19 +470,8 @@ def _shaking_tilt_run(pitch_deg=0.3, bounce_mm=1.0, sway_mm=2.0, tilt_deg=40.0, 
         x, y, w, h = roi
         start = np.column_stack([x + rng.uniform(0, w, 30), y + rng.uniform(0, h / 2, 30)])
         wall = nominal.to_wall(cam.normalise(start)) + [0.0, speed * t]
-        kpx = seen(wall, t)
-        kf = SimpleNamespace(pts=kpx.astype(np.float32), t_s=t, distance=0.0)
-        pose.keyframe(kf, kpx + roi[:2], t)
-        for j in range(1, 7):
-            tj = t + j / 30
-            px = seen(wall, tj) + rng.normal(0, 0.05, (30, 2))
-            proj = pose.projection
-            moved = (proj.to_wall(cam.normalise(kpx + roi[:2])) - proj.to_wall(cam.normalise(px + roi[:2]))).T
-            moved *= [[-1.0], [1.0]]
-            idx, both = np.arange(30), np.ones(30, bool)
-            c = SimpleNamespace(idx=idx, pts=px.astype(np.float32), tracks=(idx, px, moved, both),
-                                sigma=float(np.std(moved[1])), step=float(moved[1].mean()), lat=float(moved[0].mean()))
-            pose.measure(kf, c, tj)
+        for _ in _keyframe(pose, cam, roi, seen, wall, t, 6, rng):
+            pass
         t += 6 / 30
     return pose.tilt_deg - tilt_deg
 
