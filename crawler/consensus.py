@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .motionfit import remeasured
+
 MAD_TO_SIGMA = 1.4826                  # a normal distribution's sigma per median absolute deviation
 LATERAL_AXIAL = np.array([[-1.0], [1.0]])   # moved = keyframe wall - wall, signs per row (lateral, axial)
 
@@ -86,12 +88,9 @@ class SpeedFilter:
     def remeasured(self, gain_m: float):
         """The distance gained gain_m from its steps measured again (a better tilt): the window's
         samples gain it in proportion to what each had covered, so it is not read as speed."""
-        if not gain_m or len(self._hist) < 2:
+        if not gain_m or len(self._hist) < 2 or self._hist[-1][1] == self._hist[0][1]:
             return
-        d0, span = self._hist[0][1], self._hist[-1][1] - self._hist[0][1]
-        if not span:
-            return
-        hist, t0 = [(t, d + gain_m * (d - d0) / span) for t, d in self._hist], self._t0
+        hist, t0 = remeasured(list(self._hist), gain_m), self._t0
         self.reset()
         self._t0 = t0
         for t, d in hist:

@@ -74,9 +74,9 @@ def ramp_at(ts, ds, rate: float, k: float = 3.0, floor_m: float = 2e-5) -> float
 
 
 def remeasured(samples: list, gain_m: float):
-    """The odometer measured its steps since the fresh start again (a better tilt): the samples the
-    speed after the gap is taken from gain it too, in proportion to the distance each had covered
-    (a scale error), so that the correction is not read as speed."""
+    """The odometer measured its steps again (a better tilt): (time, distance) samples a speed is
+    read from (the speed filter's window, the speed after a gap) gain it too, in proportion to the
+    distance each had covered (a scale error), so that the correction is not read as speed."""
     if gain_m and len(samples) > 1 and samples[-1][1] != samples[0][1]:
         d0, span = samples[0][1], samples[-1][1] - samples[0][1]
         samples[:] = [(t, d + gain_m * (d - d0) / span) for t, d in samples]
