@@ -34,6 +34,10 @@ class FlowParams:
     check_backward: bool = True     # the backward LK call of that check (half the tracking cost)
     coarse_level: int = 2           # pyramid level of the phase-correlation first guess
     saturated_dn: int = 250         # grey level of a highlight: no features on or around it (0: off)
+    flat_pull: float = 0.03         # a keyframe whose features' row gradient has this share of shading
+                                    # that stays put in the image is tracked flat-fielded (`static_pull`)
+    flat_px: int = 9                # ...with the local mean over this square taken out (`flatten`)
+    flat_gain: float = 4.0          # ...and the rest amplified this much (a wet wall's grain is a few DN)
 
     @property
     def lk_kwargs(self) -> dict:
@@ -57,16 +61,75 @@ class FlowParams:
         return 2 * (self.win_px // 2 + 2 + self.search_px) + 1
 
 
-def coarse_image(img: np.ndarray, params: FlowParams) -> np.ndarray:
-    """The low-resolution copy used for the global phase-correlation guess, as float32."""
+def coarse_image(img: np.ndarray, params: FlowParams, flat: bool = False) -> np.ndarray:
+    """The low-resolution copy used for the global phase-correlation guess, as float32; `flat`:
+    less its local mean, as `flatten` (shading that stays put would read as a standstill)."""
     f = 2 ** params.coarse_level
     h, w = img.shape
-    small = cv2.resize(img, (-(-w // f), -(-h // f)), interpolation=cv2.INTER_AREA)
-    return small.astype(np.float32)
+    small = cv2.resize(img, (-(-w // f), -(-h // f)), interpolation=cv2.INTER_AREA).astype(np.float32)
+    if flat:
+        k = max(3, (params.flat_px // f) | 1)
+        small -= cv2.blur(small, (k, k))
+    return small
 
 
-def detect(img: np.ndarray, params: FlowParams, border_px: int = 0) -> np.ndarray:
-    """Shi–Tomasi corners (N, 2) float32 in img's pixels, kept border_px away from its edge.
+def flatten(img: np.ndarray, params: FlowParams) -> np.ndarray:
+    """What LK sees of a wall under shading that stays put in the image (the LED's highlight on a
+    wet wall, its fall-off): the image less its local mean over flat_px, times flat_gain, about 128.
+
+    Such shading adds its gradient to the wall's, and LK, which matches gradients, is pulled toward
+    no motion by the share of it (`static_pull`). A local mean is a filter that does not depend on
+    where it is applied, so the wall's texture moves in the flattened frames exactly as in the
+    frames; the shading, smooth over flat_px, is gone. It costs 2.6 M ARM instructions a frame, so
+    only keyframes that need it are tracked so (docs/odometry.md, "Weak texture").
+    """
+    k = params.flat_px
+    return cv2.addWeighted(img, params.flat_gain, cv2.blur(img, (k, k)), -params.flat_gain, 128.0)
+
+
+def static_pull(img: np.ndarray, before: np.ndarray, pts: np.ndarray, params: FlowParams) -> float:
+    """The share of the features' row gradient that stays put in the image: how far LK on img is
+    pulled toward no motion (0: not at all, 1: it reads a standstill).
+
+    A patch's shading slope along the rows (its least-squares plane's) is the shading's; texture
+    averages out of it. The wall's own coarse shading moves, the LED's stays: `before` is a frame
+    taken where the wall was elsewhere, and the product of the two slopes at the same pixels keeps
+    only the slope they share, over the patches' mean squared row gradient (LK's weight). Where the
+    fine texture stayed too (a stand, blocks the video encoder copied) nothing is pulled: each
+    patch counts by how little its row gradients, less their mean, match those before."""
+    if len(pts) == 0 or before is None or before.shape != img.shape:
+        return 0.0
+    t = params.patch_px
+    h, w = img.shape
+    # every other feature and every other column of its patch, both frames in one array: a
+    # statistic, not a measurement (numpy's calls, not its arithmetic, are the cost on the Pi)
+    corner = np.minimum(np.maximum(pts[::2].astype(np.intp) - t // 2, 0), (w - t, h - t))
+    n = len(corner)
+    both = np.concatenate([patches(img, corner, t), patches(before, corner, t)])[:, ::2]
+    both = both.astype(np.float32).reshape(2, n, t, -1)
+    slope = both.reshape(2, n, -1) @ _row_ramp(t, both.shape[3])        # (2, n)
+    rows = np.diff(both, axis=2)
+    size = rows[0, 0].size
+    mean = rows.sum(axis=(2, 3)) / size                                 # the slope again, per pixel
+    sq = np.einsum("knij,knij->kn", rows, rows) / size - mean * mean     # the fine texture's power
+    cross = np.einsum("nij,nij->n", rows[0], rows[1]) / size - mean[0] * mean[1]
+    same = cross / np.sqrt(sq[0] * sq[1] + 1e-6)      # how alike the fine texture is in both
+    moved = np.clip(1.0 - 2.0 * same, 0.0, 1.0)        # half of it the same: a copy, a stand
+    gain = slope[0] * slope[1] / np.maximum(sq[0] + mean[0] * mean[0], 1e-6)
+    return float(np.mean(moved * gain))
+
+
+@functools.lru_cache(maxsize=4)
+def _row_ramp(t: int, width: int) -> np.ndarray:
+    """The weights of a t x width patch's pixels, row by row, that give its least-squares slope
+    along the rows (grey levels/px)."""
+    y = np.arange(t, dtype=np.float32) - (t - 1) / 2.0
+    return np.repeat(y / np.sum(y * y) / width, width)
+
+
+def detect(img: np.ndarray, params: FlowParams, border_px: int = 0, glare: np.ndarray | None = None) -> np.ndarray:
+    """Shi–Tomasi corners (N, 2) float32 in img's pixels, kept border_px away from its edge; a
+    specular highlight is looked for in `glare` (the frame as it came) if img is flattened.
 
     Found on a copy shrunk by detect_scale (averages of s x s pixels): the corner measure is the
     dearest part of a keyframe on the Pi, and LK needs texture under its window, not a corner's
@@ -75,16 +138,18 @@ def detect(img: np.ndarray, params: FlowParams, border_px: int = 0) -> np.ndarra
     s = params.detect_scale
     h, w = img.shape
     small = img if s == 1 else cv2.resize(img, (w // s, h // s), interpolation=cv2.INTER_AREA)
+    lit = small if glare is None else glare if s == 1 else cv2.resize(glare, (w // s, h // s),
+                                                                       interpolation=cv2.INTER_AREA)
     b = -(-border_px // s)
     mask = None
     if b:
         mask = np.zeros(small.shape, np.uint8)
         mask[b:-b, b:-b] = 255
-    if params.saturated_dn and cv2.minMaxLoc(small)[1] >= params.saturated_dn:
+    if params.saturated_dn and cv2.minMaxLoc(lit)[1] >= params.saturated_dn:
         # a specular highlight stays put in the image while the wall moves under it: its rim is
         # texture that does not move, so no feature is taken on or next to it. Only blobs count
         # (what survives an erosion): bright grains of a well-lit wall clip too, and move with it
-        core = cv2.erode((small >= params.saturated_dn).astype(np.uint8), None, iterations=2)
+        core = cv2.erode((lit >= params.saturated_dn).astype(np.uint8), None, iterations=2)
         if cv2.countNonZero(core):
             glare = cv2.dilate(core, None, iterations=2 + max(1, params.detect_block_px))
             mask = np.full(small.shape, 255, np.uint8) if mask is None else mask

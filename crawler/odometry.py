@@ -25,7 +25,7 @@ from .dense import DenseShift, centre_jacobian, dense_conversion
 from .estimate import Estimate
 from .gates import FrameGates, SpreadGate, reacquired
 from .geometry import Camera, Projection
-from .keyframe import Keyframe, find_features, motion_model, track_visible
+from .keyframe import Keyframe, keyframe_features, motion_model, track_visible
 from .odometry_params import OdometryParams
 from .pose import NullPose
 
@@ -63,7 +63,7 @@ class Odometer:
         self.distance, self.lateral = distance, lateral
         self.frame, self.lost_frames = -1, 0
         self._kf: Keyframe | None = None
-        self._good_coarse = None   # quarter-size ROI of the last tracked frame, for the guess
+        self._good_coarse = None   # (flat, quarter-size ROI of the last tracked frame), for the guess
         self._good_roi, self._good_at = None, (distance, lateral)   # ...and its distance, lateral
         self._prev_t = None
         self._last_good_t = 0.0
@@ -171,7 +171,7 @@ class Odometer:
     def _new_keyframe(self, img, t_s, owned: bool = False) -> bool:
         if not owned:
             img = img.copy()  # the frame buffer belongs to the camera or decoder
-        pts = find_features(img, self._motion_v, self.params, self._border)
+        pts, seen, pull = keyframe_features(img, t_s, self._kf, self._motion_v, self.params, self._border)
         if len(pts) < self.params.min_tracks:
             self._kf = None
             self._prev_pts = None
@@ -182,7 +182,7 @@ class Odometer:
         pts, px, wall = pts[good], px[good], wall[good]
         predict = motion_model(px, wall, self._pixels, self.m_per_px)
         self._kf = Keyframe(img, pts, wall, self.camera.row_time(px[:, 1]), t_s, self.distance,
-                            self.lateral, predict)
+                            self.lateral, predict, seen, pull)
         self.pose.keyframe(self._kf, px, t_s)
         self._prev_pts = self._kf.pts
         self._prev_origin = (self._kf, slice(None))
@@ -221,10 +221,10 @@ class Odometer:
         """
         if self._good_roi is None or self._good_roi.shape != img.shape:
             return None
-        fp = self.params.flow
-        if self._good_coarse is None:
-            self._good_coarse = flow.coarse_image(self._good_roi, fp)
-        (du, dv), response = flow.coarse_shift(self._good_coarse, flow.coarse_image(img, fp),
+        fp, flat = self.params.flow, self._kf is not None and self._kf.flat
+        if self._good_coarse is None or self._good_coarse[0] != flat:
+            self._good_coarse = (flat, flow.coarse_image(self._good_roi, fp, flat))
+        (du, dv), response = flow.coarse_shift(self._good_coarse[1], flow.coarse_image(img, fp, flat),
                                                self._window, self._coarse_scale)
         if response < self.params.min_response:
             return None

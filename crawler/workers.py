@@ -48,8 +48,8 @@ REPLY_WAIT_S = 10.0                     # a worker that takes longer than this t
 class KeyframeView:
     """What track_visible reads of a keyframe, as views of its shared slot."""
 
-    def __init__(self, img, pts, model):
-        self.img, self.pts, self.model = img, pts, model
+    def __init__(self, seen, pts, model, flat: bool):
+        self.seen, self.pts, self.model, self.flat = seen, pts, model, flat
 
 
 class SharedRing:
@@ -60,7 +60,7 @@ class SharedRing:
         rh, rw = roi[3], roi[2]
         n = max_features
         self.roi = tuple(roi)
-        sizes = [8] + [h * w] * frames + [8 + 8 + rh * rw + 8 * n + 24 * n] * KEYFRAME_SLOTS
+        sizes = [8] + [h * w] * frames + [24 + rh * rw + 8 * n + 24 * n] * KEYFRAME_SLOTS
         offsets = np.cumsum([0] + [-(-s // 16) * 16 for s in sizes])
         self.mm = mmap.mmap(-1, int(offsets[-1]))         # anonymous and shared: forks see it
         view = lambda shape, dtype, off: np.ndarray(shape, dtype, self.mm, int(off))   # noqa: E731
@@ -69,9 +69,9 @@ class SharedRing:
         self.slots = []
         for i in range(KEYFRAME_SLOTS):
             off = offsets[1 + frames + i]
-            self.slots.append((view((2,), np.int64, off), view((rh, rw), np.uint8, off + 16),
-                               view((n, 2), np.float32, off + 16 + rh * rw),
-                               view((2 * n, 3), np.float32, off + 16 + rh * rw + 8 * n)))
+            self.slots.append((view((3,), np.int64, off), view((rh, rw), np.uint8, off + 24),
+                               view((n, 2), np.float32, off + 24 + rh * rw),
+                               view((2 * n, 3), np.float32, off + 24 + rh * rw + 8 * n)))
         self.latest[0] = -1
 
     def publish(self, gen: int, kf) -> None:
@@ -79,10 +79,10 @@ class SharedRing:
         tag, img, pts, model = self.slots[gen % KEYFRAME_SLOTS]
         n = len(kf.pts)
         tag[0] = -1
-        img[...] = kf.img
+        img[...] = kf.seen
         pts[:n] = kf.pts
         model[:2 * n] = kf.model
-        tag[1] = n
+        tag[1], tag[2] = n, kf.flat
         tag[0] = gen
         self.latest[0] = gen
 
@@ -91,7 +91,7 @@ class SharedRing:
         if tag[0] != gen:
             return None
         n = int(tag[1])
-        return KeyframeView(img, pts[:n], model[:2 * n])
+        return KeyframeView(img, pts[:n], model[:2 * n], bool(tag[2]))
 
     def holds(self, gen: int) -> bool:
         return self.slots[gen % KEYFRAME_SLOTS][0][0] == gen

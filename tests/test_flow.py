@@ -78,3 +78,55 @@ def test_no_feature_on_or_beside_a_highlight_but_bright_grains_are_kept(pair):
     plain = flow.detect(pair[0], FlowParams(max_features=200), border_px=10)
     kept = flow.detect(grains, FlowParams(max_features=200), border_px=10)
     assert len(kept) >= 0.9 * len(plain)
+
+
+def faint_under_a_lobe(pair, contrast=0.08, peak=100.0, sigma=45.0):
+    """The pair's wall at a wet wall's contrast under an LED highlight fixed in the image (not
+    saturated), and the highlight alone."""
+    yy, xx = np.mgrid[0:240, 0:240]
+    lobe = peak * np.exp(-((xx - 120.0) ** 2 + (yy - 60.0) ** 2) / (2 * sigma * sigma))
+    wet = [np.clip(100 + contrast * (img.astype(np.float32) - 128) + lobe, 0, 255).astype(np.uint8)
+           for img in pair[:2]]
+    return wet, lobe
+
+
+def test_flattened_frames_move_as_the_wall_without_the_shading_that_stays_put(pair):
+    (a, b), _ = faint_under_a_lobe(pair)
+    params = FlowParams()
+    pts = flow.detect(a, params, border_px=30)
+    guess = pts + SHIFT
+    p_raw, ok_raw, _ = flow.track(a, b, pts, guess, params)
+    fa, fb = flow.flatten(a, params), flow.flatten(b, params)
+    p_flat, ok_flat, _ = flow.track(fa, fb, pts, guess, params)
+    raw = np.median((p_raw - pts)[ok_raw, 1])
+    flat = np.median((p_flat - pts)[ok_flat, 1])
+    assert raw < SHIFT[1] - 0.3                      # LK on the frames: pulled toward no motion
+    assert ok_flat.sum() >= 20 and abs(flat - SHIFT[1]) < 0.05
+
+
+def test_static_pull_sees_the_leds_shading_not_the_walls_own_nor_a_copy(pair):
+    params = FlowParams()
+    (a, b), lobe = faint_under_a_lobe(pair)
+    pts = flow.detect(a, params, border_px=30)
+    assert flow.static_pull(b, a, pts, params) > 3 * params.flat_pull         # the highlight stays put
+    assert flow.static_pull(b, b.copy(), pts, params) < 0.1 * params.flat_pull   # a copy: nothing moved
+    assert flow.static_pull(b, None, pts, params) == 0.0                         # nothing to compare with
+    # a lit wall whose own coarse shading is as strong as that highlight, moving with it as far as
+    # between two keyframes
+    rng = np.random.default_rng(4)
+    tex = cv2.GaussianBlur((rng.random((400, 400)) * 255).astype(np.float32), (0, 0), 1.5)
+    blobs = cv2.GaussianBlur(rng.normal(0, 1, (400, 400)).astype(np.float32), (0, 0), 30)
+    wall = 0.6 * tex + 40 * blobs / blobs.std()
+    before, now = wall[140:380, 80:320], wall[80:320, 80:320]
+    lit = [np.clip(img, 0, 255).astype(np.uint8) for img in (before, now)]
+    pts = flow.detect(lit[1], params, border_px=30)
+    assert flow.static_pull(lit[1], lit[0], pts, params) < 0.5 * params.flat_pull
+
+
+def test_a_flattened_frame_finds_a_highlight_in_the_frame_as_it_came(pair):
+    a = pair[0].copy()
+    a[100:140, 60:110] = 255
+    params = FlowParams(max_features=200)
+    pts = flow.detect(flow.flatten(a, params), params, border_px=10, glare=a)
+    near = (pts[:, 0] > 60 - 6) & (pts[:, 0] < 110 + 6) & (pts[:, 1] > 100 - 6) & (pts[:, 1] < 140 + 6)
+    assert len(pts) > 50 and not near.any()

@@ -1,12 +1,15 @@
 """Odometry on exactly known synthetic motion: a flat texture translated under a square camera."""
 
+import math
+
 import cv2
 import numpy as np
 import pytest
 
 from crawler.geometry import Camera, Mount, make_projection
-from crawler.flow import texture_energy
+from crawler.flow import FlowParams, texture_energy
 from crawler.odometry import Odometer, SpeedFilter, robust_step
+from crawler.odometry_params import OdometryParams
 
 CAM = Camera.from_fov(640, 480, 37.16, 53.50)
 MOUNT = Mount(0.15, 0.2256, 0.0)
@@ -227,3 +230,27 @@ def test_a_stand_whose_picture_turns_into_another_is_no_stand_but_noise_and_ligh
              for k in range(16)]
     _, est = run(texture, np.zeros(16), frames=stand)
     assert all(e.tracking for e in est) and max(abs(e.distance_m) for e in est) < 1e-5
+
+
+def test_a_faint_wall_under_a_fixed_highlight_is_tracked_flat_fielded_not_pulled_to_a_stand(texture):
+    # a wet wall (8 % of the contrast) under the LED's highlight, not saturated, that stays put in
+    # the image while the wall moves 4 px a frame: LK on the frames reads the motion short (the
+    # highlight's gradient pulls it toward none); keyframes that see the pull track flattened frames
+    yy, xx = np.mgrid[0:480, 0:640]
+    lobe = 100.0 * np.exp(-((xx - 320.0) ** 2 + (yy - 250.0) ** 2) / (2 * 60.0 ** 2))
+    faint = 110 + 0.08 * (texture.astype(np.float32) - 128)
+    rng = np.random.default_rng(1)
+    frames = []
+    for i in range(60):
+        m = np.float32([[1, 0, 0], [0, 1, 4.0 * i - 5000]])
+        img = cv2.warpAffine(faint, m, (640, 480), flags=cv2.INTER_LINEAR) + lobe + rng.normal(0, 0.5, lobe.shape)
+        frames.append(np.clip(img, 0, 255).astype(np.uint8))
+    true = 4.0 * 59 * M_PER_PX
+    errors = {}
+    for pull in (FlowParams().flat_pull, math.inf):
+        odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI, OdometryParams(flow=FlowParams(flat_pull=pull)))
+        est = [odo.update(img, i / 30) for i, img in enumerate(frames)]
+        errors[pull] = (odo.distance - true) / true
+        assert all(e.tracking for e in est) and odo.keyframe.flat == (pull < math.inf)
+    assert errors[math.inf] < -0.03                 # pulled: 6.5 % short
+    assert abs(errors[FlowParams().flat_pull]) < 0.003
