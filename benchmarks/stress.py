@@ -1,7 +1,7 @@
 """Stress suite for "never lose distance": hw_sim runs with one hard disturbance each, replayed by crawlerd.
 
     python benchmarks/stress.py [--out DIR] [--jobs N] [--cases a,b] [--markdown] [--set SECTION.KEY=VALUE]
-                                [--reseed N] [--wall skimage:brick|IMAGE] [--held-out | --probes]
+                                [--reseed N] [--wall skimage:brick|IMAGE] [--held-out | --probes | --lobes]
 
 Each case renders once (cached in --out; the .csv keeps the true tilt, camera height, LED light, wet
 share and lost frames per frame) and is replayed with crawlerd's Daemon as `crawlerd --replay` would
@@ -106,6 +106,30 @@ PROBES = {
 CASES.update({name: (fields, []) for name, fields in PROBES.items()})
 
 
+def _lobe(tilt, speed, wall, seed, **more) -> dict:
+    """A wet stretch under the LED's highlight, 0.15 m into the run and as long as 4 s of driving."""
+    a = 0.15 + 0.1
+    return dict(tilt_deg=tilt, speed_m_s=speed, duration_s=min(16.0, (a + 4 * speed + 0.35) / speed), seed=seed,
+                wet_patches=((a, a + 4 * speed),), **LIT, **wall_image(f"skimage:{wall}"), **more)
+
+
+# lobes (--lobes): a wet stretch under the LED's highlight that stays in the image, not saturated
+# where the features are, on photographed walls, from a crawl to a walk
+LOBES = {
+    "lobe-brick-40deg-0.05": _lobe(40, 0.05, "brick", 501),
+    "lobe-grass-40deg-0.05": _lobe(40, 0.05, "grass", 502),
+    "lobe-gravel-24deg-0.05": _lobe(24, 0.05, "gravel", 503),
+    "lobe-brick-0deg-0.1": _lobe(0, 0.1, "brick", 504),
+    "lobe-grass-24deg-0.1": _lobe(24, 0.1, "grass", 505, wet_highlight=1.2, wet_highlight_deg=8.0),
+    "lobe-brick-24deg-0.2": _lobe(24, 0.2, "brick", 506, wet_highlight_at=(480.0, 560.0)),
+    "lobe-gravel-0deg-0.2": _lobe(0, 0.2, "gravel", 507, wet_highlight=1.0),
+    "lobe-grass-40deg-0.1": _lobe(40, 0.1, "grass", 508, wet_highlight_at=(400.0, 600.0), wet_highlight=0.8),
+    "lobe-brick-40deg-0.3": _lobe(40, 0.3, "brick", 509, wet_contrast=0.04),
+    "lobe-gravel-40deg-0.03": _lobe(40, 0.03, "gravel", 510, wet_highlight_deg=10.0),
+}
+CASES.update({name: (fields, []) for name, fields in LOBES.items()})
+
+
 def replay(h264: Path, overrides: list[str], log: Path) -> dict:
     from crawler import settings
     from crawler.service import Mode, RunOptions, Service
@@ -169,6 +193,8 @@ def main(argv=None):
                     help="the held-out variants instead: the same disturbances at other tilts and speeds")
     ap.add_argument("--probes", action="store_true",
                     help="the probe runs instead: stands, reversals and ramps inside gaps on photographed walls")
+    ap.add_argument("--lobes", action="store_true",
+                    help="the lobe runs instead: wet stretches under the LED's highlight, from a crawl to a walk")
     ap.add_argument("--wall", metavar="IMAGE",
                     help="every case on this photographed wall instead of its own texture: a grey image "
                          "file, or skimage:brick|gravel|grass (a held-out check)")
@@ -178,10 +204,12 @@ def main(argv=None):
         out = out / ("wall-" + Path(args.wall.split(":")[-1]).stem)
     if args.probes:
         out = out / "probes"
+    if args.lobes:
+        out = out / "lobes"
 
     out.mkdir(parents=True, exist_ok=True)
     names = (args.cases.split(",") if args.cases else list(HELD_OUT) if args.held_out
-             else list(PROBES) if args.probes else MAIN)
+             else list(PROBES) if args.probes else list(LOBES) if args.lobes else MAIN)
     t0 = time.time()
     rows = []
     with ProcessPoolExecutor(args.jobs) as pool:
