@@ -254,3 +254,20 @@ def test_a_faint_wall_under_a_fixed_highlight_is_tracked_flat_fielded_not_pulled
         assert all(e.tracking for e in est) and odo.keyframe.flat == (pull < math.inf)
     assert errors[math.inf] < -0.03                 # pulled: 6.5 % short
     assert abs(errors[FlowParams().flat_pull]) < 0.003
+
+
+def test_keyframes_soon_after_one_far_below_the_pull_are_not_tested(texture):
+    # the test costs 0.8 M ARM instructions: within 0.1 s of a keyframe tested far below the
+    # threshold none is tested; near or above it, or later, every one is
+    from types import SimpleNamespace
+
+    from crawler.keyframe import keyframe_features
+
+    params = OdometryParams()
+    img = view(texture, 0.0)[240:480, 200:440]
+    before = SimpleNamespace(img=view(texture, 80.0)[240:480, 200:440], t_s=0.0, pull=0.001)
+    assert keyframe_features(img, 0.05, before, 0.0, params, 6)[2] is None
+    assert keyframe_features(img, 0.15, before, 0.0, params, 6)[2] is not None
+    before.pull = 0.02                              # near the threshold: always tested
+    assert keyframe_features(img, 0.05, before, 0.0, params, 6)[2] is not None
+    assert keyframe_features(img, 0.05, None, 0.0, params, 6)[2] is None      # nothing to compare with
