@@ -95,3 +95,26 @@ def _alive(pid: int) -> bool:
             return f.read().rsplit(")", 1)[-1].split()[0] != "Z"
     except FileNotFoundError:
         return False
+
+
+def test_flat_fielded_keyframes_are_tracked_flattened_by_the_workers_too(render_run, monkeypatch):
+    # a wet wall under the LED's highlight at 40 deg: most keyframes are tracked flattened
+    # (crawler/flow.py, static_pull); the workers are sent the flattened keyframe and its flag
+    from crawler import odometry
+
+    run = render_run("wet40", tilt_deg=40, speed_m_s=0.1, duration_s=2.0, wet_patches=((0.0, 1.0),),
+                     lighting=True, seed=5)
+    flats = []
+    new_keyframe = odometry.Odometer._new_keyframe
+
+    def counted(self, *a, **kw):
+        made = new_keyframe(self, *a, **kw)
+        flats.extend([self._kf.flat] if made else [])
+        return made
+
+    monkeypatch.setattr(odometry.Odometer, "_new_keyframe", counted)
+    s = load(None, ["mount.tilt_deg=40"], {})
+    alone, _ = _replay(run, s)
+    pooled, counts = _replay(run, s, workers=3, depth=1)
+    assert sum(flats) >= 3
+    assert pooled == alone and counts["tracked_by_workers"] >= 40
