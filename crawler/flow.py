@@ -81,7 +81,8 @@ def flatten(img: np.ndarray, params: FlowParams) -> np.ndarray:
     no motion by the share of it (`static_pull`). A local mean is a filter that does not depend on
     where it is applied, so the wall's texture moves in the flattened frames exactly as in the
     frames; the shading, smooth over flat_px, is gone. It costs 2.6 M ARM instructions a frame, so
-    only keyframes that need it are tracked so (docs/odometry.md, "Weak texture").
+    only keyframes that need it are tracked so (docs/odometry.md, "Weak texture under a fixed
+    highlight").
     """
     k = params.flat_px
     return cv2.addWeighted(img, params.flat_gain, cv2.blur(img, (k, k)), -params.flat_gain, 128.0)
@@ -127,9 +128,9 @@ def _row_ramp(t: int, width: int) -> np.ndarray:
     return np.repeat(y / np.sum(y * y) / width, width)
 
 
-def detect(img: np.ndarray, params: FlowParams, border_px: int = 0, glare: np.ndarray | None = None) -> np.ndarray:
+def detect(img: np.ndarray, params: FlowParams, border_px: int = 0, raw: np.ndarray | None = None) -> np.ndarray:
     """Shi–Tomasi corners (N, 2) float32 in img's pixels, kept border_px away from its edge; a
-    specular highlight is looked for in `glare` (the frame as it came) if img is flattened.
+    specular highlight is looked for in `raw`, the frame as it came, if img is flattened.
 
     Found on a copy shrunk by detect_scale (averages of s x s pixels): the corner measure is the
     dearest part of a keyframe on the Pi, and LK needs texture under its window, not a corner's
@@ -138,8 +139,7 @@ def detect(img: np.ndarray, params: FlowParams, border_px: int = 0, glare: np.nd
     s = params.detect_scale
     h, w = img.shape
     small = img if s == 1 else cv2.resize(img, (w // s, h // s), interpolation=cv2.INTER_AREA)
-    lit = small if glare is None else glare if s == 1 else cv2.resize(glare, (w // s, h // s),
-                                                                       interpolation=cv2.INTER_AREA)
+    lit = small if raw is None else raw if s == 1 else cv2.resize(raw, (w // s, h // s), interpolation=cv2.INTER_AREA)
     b = -(-border_px // s)
     mask = None
     if b:

@@ -52,16 +52,16 @@ def motion_model(px: np.ndarray, wall: np.ndarray, to_pixels, m_per_px: float):
     return [a.astype(np.float32) for a in predict]
 
 
-def find_features(img: np.ndarray, motion_rows: float, params, border_px: int, glare=None) -> np.ndarray:
+def find_features(img: np.ndarray, motion_rows: float, params, border_px: int, raw=None) -> np.ndarray:
     """A new keyframe's features (ROI px). Moving (the wall went `motion_rows` rows in the last
     frame), only on the side the wall comes in from: they stay in view longest, and half the image
-    costs half the detection. `params`: OdometryParams; `glare`: the frame as it came, if img is
+    costs half the detection. `params`: OdometryParams; `raw`: the frame as it came, if img is
     flattened (a highlight is found there)."""
     if abs(motion_rows) <= params.entry_side_px:
-        return flow.detect(img, params.flow, border_px, glare)
+        return flow.detect(img, params.flow, border_px, raw)
     band = int(params.entry_band * img.shape[0])
     top = 0 if motion_rows > 0 else img.shape[0] - band
-    pts = flow.detect(img[top:top + band], params.flow, border_px, None if glare is None else glare[top:top + band])
+    pts = flow.detect(img[top:top + band], params.flow, border_px, None if raw is None else raw[top:top + band])
     pts[:, 1] += top
     return pts
 
@@ -84,7 +84,7 @@ def keyframe_features(img: np.ndarray, t_s: float, before, motion_rows: float, p
         pull = flow.static_pull(img, before.img, pts, fp)
         if pull > fp.flat_pull:
             seen = flow.flatten(img, fp)
-            return find_features(seen, motion_rows, params, border_px, glare=img), seen, pull
+            return find_features(seen, motion_rows, params, border_px, raw=img), seen, pull
     return pts, None, pull
 
 

@@ -127,6 +127,6 @@ def test_a_flattened_frame_finds_a_highlight_in_the_frame_as_it_came(pair):
     a = pair[0].copy()
     a[100:140, 60:110] = 255
     params = FlowParams(max_features=200)
-    pts = flow.detect(flow.flatten(a, params), params, border_px=10, glare=a)
+    pts = flow.detect(flow.flatten(a, params), params, border_px=10, raw=a)
     near = (pts[:, 0] > 60 - 6) & (pts[:, 0] < 110 + 6) & (pts[:, 1] > 100 - 6) & (pts[:, 1] < 140 + 6)
     assert len(pts) > 50 and not near.any()
