@@ -14,8 +14,8 @@ in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
          true trajectory mid-run, in % of the path (and of the path so far, after its first 0.2 m);
 - both:  tilt auto with the pose estimator on too (`estimate_pose = true`): the still, shake and
          table runs (not in the default --only);
-- ride:  the shake runs (the sediment among them) and the table with the ride height's level on
-         (`[odometry] ride_height = true`, opt-in);
+- ride:  the shake runs (the sediment among them) and the table with the ride height's level off
+         (`[odometry] ride_height = false`; unset, it is on with a configured tilt up to 30 deg);
 - fixed: benchmarks/accuracy.py's cases with the configured tilt, pose estimator on (fixed) and off
          (fixed-off: the default, benchmarks/accuracy.py's cylinder column).
 
@@ -39,7 +39,7 @@ SHAKE = dict(bounce_mm=1.0, pitch_jitter_deg=0.3, roll_deg=3.0, sway_mm=2.0)
 BIG_SHAKE = dict(bounce_mm=2.0, pitch_jitter_deg=0.6, pitch_jitter_hz=1.5, bounce_hz=2.5, roll_deg=3.0, sway_mm=3.0)
 ON = ["odometry.estimate_pose=true"]      # pitch and height per frame (the default with a configured tilt)
 OFF = ["odometry.estimate_pose=false"]
-RIDE = "odometry.ride_height=true"             # the ride height over sediment (opt-in)
+RIDE_OFF = "odometry.ride_height=false"        # the ride height over sediment off (unset: on up to 30 deg)
 
 TILT_CASES = {f"still-{t}deg-{v}": dict(tilt_deg=t, speed_m_s=v, duration_s=d, seed=30 + t)
               for t in (0, 24, 40) for v, d in ((0.04, 12), (0.3, 6))}
@@ -147,9 +147,10 @@ def jobs(out: Path, only: set) -> list:
         both = ["mount.tilt_deg=auto", *ON]
         todo += [(out, "both", n, f, both) for n, f in {**TILT_CASES, **SHAKE_CASES}.items()]
         todo += [(out, "both", n, f, [*both, *x]) for n, (f, x) in CASES.items()]
-    if "ride" in only:                             # [odometry] ride_height = true (opt-in): shake runs, then the table
-        todo += [(out, "ride", n, f, [f"mount.tilt_deg={f['tilt_deg']}", *ON, RIDE]) for n, f in SHAKE_CASES.items()]
-        todo += [(out, "ride", n, f, [f"mount.tilt_deg={f.get('tilt_deg', 0)}", *x, *ON, RIDE])
+    if "ride" in only:                             # [odometry] ride_height = false: shake runs, then the table
+        todo += [(out, "ride-off", n, f, [f"mount.tilt_deg={f['tilt_deg']}", *ON, RIDE_OFF])
+                 for n, f in SHAKE_CASES.items()]
+        todo += [(out, "ride-off", n, f, [f"mount.tilt_deg={f.get('tilt_deg', 0)}", *x, *ON, RIDE_OFF])
                  for n, (f, x) in CASES.items()]
     if "fixed" in only:
         todo += [(out, "fixed", n, f, [f"mount.tilt_deg={f.get('tilt_deg', 0)}", *x, *ON])

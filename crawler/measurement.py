@@ -17,6 +17,7 @@ from .gaps import BridgeParams
 from .geometry import Camera, check_distortion, check_view, make_projection
 from .odometry import Odometer, OdometryParams
 from .pose import NullPose, PoseEstimator, PoseParams
+from .ride import MAX_TILT_DEG as RIDE_MAX_TILT_DEG
 from .settings import CameraSettings, OdometrySettings, Settings
 
 
@@ -78,6 +79,10 @@ def pose_params(settings: Settings) -> PoseParams | None:
     # unset: pitch, height and sway with a configured tilt; with tilt "auto" alone none: on a shaking car
     # the tilt's own error dominates, and both together measured worse (docs/accuracy.md, "Pose")
     on = o.estimate_pose if o.estimate_pose is not None else not auto and o.method != "pixel"
+    # unset: the ride height where its readings hold, a configured tilt up to MAX_TILT_DEG (steeper,
+    # they drift alike and the chain sums them)
+    ride = o.ride_height if o.ride_height is not None else (
+        on and not auto and abs(settings.mount.tilt_deg) <= RIDE_MAX_TILT_DEG)
     if o.ride_height and not on:
         raise BadConfig("[odometry] ride_height = true sums the pose estimator's height changes: it needs a configured "
                         "[mount] tilt_deg and [odometry] estimate_pose unset or true (or set ride_height = false)")
@@ -89,7 +94,7 @@ def pose_params(settings: Settings) -> PoseParams | None:
                         "tilt or height to estimate")
     return PoseParams(auto_tilt=settings.mount.tilt_auto, pitch_sigma_deg=o.pitch_jitter_deg if on else 0.0,
                       bounce_sigma_mm=o.bounce_mm if on else 0.0, sway_sigma_mm=o.sway_mm if on else 0.0,
-                      ride_height=on and o.ride_height)
+                      ride_height=on and ride)
 
 
 def build_odometer(settings: Settings, camera: Camera, default_roi) -> Odometer:

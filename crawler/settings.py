@@ -114,7 +114,8 @@ class OdometrySettings:
     sway_mm: float = _f(2.0, between(0, 50))              # the car's weave across the pipe: the pose prior
     estimate_pose: bool | None = _f(None)   # per-frame pitch, height, sway (crawler/pose.py); unset: with a
                                             # configured tilt, not with tilt "auto" (docs/odometry.md, "Pose")
-    ride_height: bool = _f(False)           # the ride height's level over sediment (crawler/ride.py): opt-in
+    ride_height: bool | None = _f(None)     # the ride height's level over sediment (crawler/ride.py); unset: with
+                                            # a configured tilt up to ride.MAX_TILT_DEG (docs/odometry.md, "Ride height")
     workers: int = _f(1, between(1, 16))    # processes that share a frame's work (crawler/workers.py)
 
     def __post_init__(self):
