@@ -55,17 +55,21 @@ def make_run(out: Path, name: str, window, speed: float, fps: float, frames: int
 def build(window, params, pose: str = "off"):
     """The odometer on the rendered window; pose "on": crawler/pose.py's pitch and height per frame
     ([odometry] estimate_pose), "auto": and the tilt ([mount] tilt_deg = "auto")."""
+    from crawler import settings
     from crawler.geometry import Camera, Mount, make_projection
+    from crawler.measurement import pose_params
     from crawler.odometry import Odometer
-    from crawler.pose import PoseEstimator, PoseParams
+    from crawler.pose import PoseEstimator
 
     x, y, w, h = window
     cam = Camera.from_fov(960, 720, 37.16, 53.50).window(x, y, w, h, w, h)
     proj = make_projection("cylinder", Mount.from_car(0.30, 0.151, 0.054, 0.0))
     roi = (0, 0, w, h)
-    auto = pose == "auto"             # as crawler/measurement.py builds it: tilt auto alone, no pitch or height
-    estimator = None if pose == "off" else PoseEstimator(cam, proj, roi, PoseParams(
-        auto_tilt=auto, pitch_sigma_deg=0.0 if auto else 0.25, bounce_sigma_mm=0.0 if auto else 1.0))
+    # as crawler/measurement.py builds it from the settings at 0 deg: "on" with pitch, height, sway
+    # and the ride height; tilt auto alone with none of them
+    overrides = {"on": [], "auto": ['mount.tilt_deg="auto"']}.get(pose)
+    estimator = None if overrides is None else PoseEstimator(
+        cam, proj, roi, pose_params(settings.load(None, overrides)))
     return Odometer(cam, proj, roi, params, pose=estimator)
 
 
