@@ -36,8 +36,8 @@ class DenseParams:
     min_energy_dn: float = 0.4        # smoother than a sensor's noise (flow.texture_energy): the encoder
                                       # flattened it, and what still changes is the light, not the wall
     min_changed: float = 0.2          # fewer pixels changed at all since the last frame: the encoder froze it
-    confirm: int = 3                  # shifts in a row that must agree before any is believed...
-    agree: float = 0.2                # ...within this share of each other (or a pixel)
+    confirm: int = 3                  # shifts in a row that must go on steadily before any is believed...
+    agree: float = 0.2                # ...each its neighbours' mean within this share (or a pixel)
     refine: int = 1                   # passes of `refine` on OpenCV's shift (0: OpenCV's as it is)
 
 
@@ -60,7 +60,7 @@ class DenseShift:
         self._prev_small = None       # ...and the last frame as it came, at that level
         self._frames = 0
         self._pending: list = []      # (shift, response, start time) found, not yet confirmed by the next
-        self._last_dv = None          # the last shift handed out, once confirmed
+        self._last_dv = None          # the last two shifts handed out, once confirmed
         self._prev_t = None           # the last frame's time
 
     def resample(self, maps):
@@ -78,25 +78,28 @@ class DenseShift:
         if found is None:
             self._pending, self._last_dv = [], None
             return None
-        if self._last_dv is not None and self._agree([self._last_dv, found[0][1]]):
-            self._last_dv = found[0][1]               # confirmed before, and it goes on
+        if self._last_dv is not None and self._steady([*self._last_dv, found[0][1]]):
+            self._last_dv = [self._last_dv[-1], found[0][1]]     # confirmed before, and it goes on
             return (*found, since)
         self._last_dv = None
         self._pending.append((*found, since))
         recent = [dv for (_, dv), _, _ in self._pending[-self.p.confirm:]]
-        if len(recent) < self.p.confirm or not self._agree(recent):
+        if len(recent) < self.p.confirm or not self._steady(recent):
             self._pending = self._pending[-(self.p.confirm - 1):]
             return None
         du = sum(s[0] for s, _, _ in self._pending)
         dv = sum(s[1] for s, _, _ in self._pending)
         response = min(r for _, r, _ in self._pending)
         since = self._pending[0][2]
-        self._pending, self._last_dv = [], recent[-1]
+        self._pending, self._last_dv = [], recent[-2:]
         return (du, dv), response, since
 
-    def _agree(self, dvs) -> bool:
-        lo, hi = min(dvs), max(dvs)
-        return hi - lo <= max(1.0, self.p.agree * max(abs(lo), abs(hi)))
+    def _steady(self, dvs) -> bool:
+        """Do these frame-to-frame shifts go on as a crawler's drive does: each the mean of its
+        neighbours (a steady speed, or a steady brake or start) within 20 % or a pixel? A brake
+        to a stand changes the shift by a third a frame, and a chance peak does not line up."""
+        tol = max(1.0, self.p.agree * max(abs(d) for d in dvs))
+        return all(abs(a - 2 * b + c) <= 2 * tol for a, b, c in zip(dvs, dvs[1:], dvs[2:]))
 
     def _frame_shift(self, roi: np.ndarray):
         small8 = cv2.resize(roi, self._size, interpolation=cv2.INTER_AREA)

@@ -271,3 +271,30 @@ def test_keyframes_soon_after_one_far_below_the_pull_are_not_tested(texture):
     before.pull = 0.02                              # near the threshold: always tested
     assert keyframe_features(img, 0.05, before, 0.0, params, 6)[2] is not None
     assert keyframe_features(img, 0.05, None, 0.0, params, 6)[2] is None      # nothing to compare with
+
+
+def test_a_faint_wall_braking_to_a_stand_is_measured_by_the_dense_shift_all_the_way(texture):
+    # the dense shift believes a shift once three in a row go on steadily: a steady speed, and a
+    # steady brake too, which a crawler stopping on a wet wall shows; before, only shifts within
+    # 20 % of each other counted, and the brake went unseen
+    odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
+    rng = np.random.default_rng(5)
+    faint = cv2.GaussianBlur(texture.astype(np.float32), (0, 0), 6.0)
+    faint = 120 + 0.03 * (faint - faint.mean()) / faint.std() * 255 / 4
+    speeds = [8.0] * 30 + list(np.linspace(8.0, 0.0, 9)[1:]) + [0.0] * 12       # px a frame
+    offsets = np.concatenate([[0.0], np.cumsum(speeds)])
+    ests = []
+    for i, off in enumerate(offsets):
+        if i < 10:
+            img = view(texture, off)
+        else:
+            m = np.float32([[1, 0, 0], [0, 1, off - 5000]])
+            img = cv2.warpAffine(faint, m, (640, 480), flags=cv2.INTER_LINEAR)
+            img = np.clip(img + rng.normal(0, 0.5, img.shape), 0, 255).astype(np.uint8)
+        ests.append(odo.update(img, i / 30))
+    brake = ests[31:39]
+    assert sum(e.tracking for e in brake) >= 6                 # measured while it slows, to the stand
+    # standing, the running mean becomes the picture and the shift sees nothing: the stand is the
+    # bridge's (crawler/gaps.py), from the brake measured up to it
+    moved = ests[-1].distance_m - ests[25].distance_m            # from a frame the dense shift measured
+    assert ests[25].tracking and moved == pytest.approx((offsets[-1] - offsets[25]) * M_PER_PX, rel=0.02)
