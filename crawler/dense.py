@@ -39,6 +39,7 @@ class DenseParams:
     confirm: int = 3                  # shifts in a row that must go on steadily before any is believed...
     agree: float = 0.2                # ...each its neighbours' mean within this share (or a pixel)
     refine: int = 1                   # passes of `refine` on OpenCV's shift (0: OpenCV's as it is)
+    stop_px: float = 2.0              # a frozen frame after a believed shift this small (px a frame): a stand
 
 
 class DenseShift:
@@ -62,6 +63,7 @@ class DenseShift:
         self._pending: list = []      # (shift, response, start time) found, not yet confirmed by the next
         self._last_dv = None          # the last two shifts handed out, once confirmed
         self._prev_t = None           # the last frame's time
+        self._frozen = False          # the last frame was the encoder's copy of the one before
 
     def resample(self, maps):
         """Resample the frames with these maps (dense_conversion's) from now on; what was seen on the
@@ -75,6 +77,11 @@ class DenseShift:
         up, unsure or waiting for confirmation."""
         found, since = self._frame_shift(roi), self._prev_t
         self._prev_t = t_s
+        if found is None and self._frozen and self._last_dv is not None and abs(self._last_dv[-1]) <= self.p.stop_px:
+            # seen slowing to a crawl, then frames the encoder left as they were: a faint wall that
+            # moved would have changed them as it did a moment ago, so the crawler stands
+            self._pending, self._last_dv = [], [0.0, 0.0]
+            return (0.0, 0.0), 1.0, since
         if found is None:
             self._pending, self._last_dv = [], None
             return None
@@ -104,9 +111,11 @@ class DenseShift:
     def _frame_shift(self, roi: np.ndarray):
         small8 = cv2.resize(roi, self._size, interpolation=cv2.INTER_AREA)
         # a low-contrast wall is copied unchanged from frame to frame by the video encoder: such a
-        # frame says nothing about the motion (not even that there was none). A faint wall that
-        # moves still changes most pixels a little (a copied block changes none)
+        # frame says nothing about the motion (not even that there was none), unless the wall was
+        # just seen slowing to a crawl (`shift`). A faint wall that moves still changes most pixels
+        # a little (a copied block changes none)
         frozen = self._prev_small is not None and encoder_copy(small8, self._prev_small, self.p.min_changed)
+        self._frozen = frozen
         self._prev_small = small8
         small = small8.astype(np.float32)
         if self.maps is not None:

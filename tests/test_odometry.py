@@ -298,3 +298,31 @@ def test_a_faint_wall_braking_to_a_stand_is_measured_by_the_dense_shift_all_the_
     # bridge's (crawler/gaps.py), from the brake measured up to it
     moved = ests[-1].distance_m - ests[25].distance_m            # from a frame the dense shift measured
     assert ests[25].tracking and moved == pytest.approx((offsets[-1] - offsets[25]) * M_PER_PX, rel=0.02)
+
+
+def test_copied_frames_after_a_brake_to_a_crawl_are_a_stand_but_after_motion_no_news(texture):
+    # a faint wall whose frames the encoder copies once it stands still: the dense shift saw it slow
+    # to under 2 px a frame, and a faint wall that moved would have changed the frames as it just
+    # did, so the copies are a stand, measured. Copies right after 8 px a frame say nothing
+    faint = cv2.GaussianBlur(texture.astype(np.float32), (0, 0), 6.0)
+    faint = 120 + 0.03 * (faint - faint.mean()) / faint.std() * 255 / 4
+
+    def run_with(speeds):
+        odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
+        rng = np.random.default_rng(5)
+        offsets = np.concatenate([[0.0], np.cumsum(speeds)])
+        ests = []
+        for i, off in enumerate(offsets):
+            if i < 10:
+                img = view(texture, off)
+            elif off != offsets[i - 1]:
+                m = np.float32([[1, 0, 0], [0, 1, off - 5000]])
+                img = cv2.warpAffine(faint, m, (640, 480), flags=cv2.INTER_LINEAR)
+                img = np.clip(img + rng.normal(0, 0.5, img.shape), 0, 255).astype(np.uint8)
+            ests.append(odo.update(img, i / 30))                # standing: the same frame again
+        return ests
+
+    ests = run_with([8.0] * 30 + list(np.linspace(8.0, 0.0, 9)[1:]) + [0.0] * 12)
+    assert all(e.tracking for e in ests[-8:]) and ests[-1].distance_m == ests[-8].distance_m
+    ests = run_with([8.0] * 30 + [0.0] * 12)                    # frozen at full speed: no stand
+    assert not any(e.tracking for e in ests[-8:])
