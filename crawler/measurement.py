@@ -94,7 +94,7 @@ def pose_params(settings: Settings) -> PoseParams | None:
                         "tilt or height to estimate")
     return PoseParams(auto_tilt=settings.mount.tilt_auto, pitch_sigma_deg=o.pitch_jitter_deg if on else 0.0,
                       bounce_sigma_mm=o.bounce_mm if on else 0.0, sway_sigma_mm=o.sway_mm if on else 0.0,
-                      ride_height=on and ride)
+                      ride_height=ride)
 
 
 def build_odometer(settings: Settings, camera: Camera, default_roi) -> Odometer:
