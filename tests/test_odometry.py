@@ -23,6 +23,12 @@ def view(texture, offset_px):
     return cv2.warpAffine(texture, m, (640, 480), flags=cv2.INTER_LINEAR)
 
 
+def faint_wall(texture):
+    """The texture as a lit wall too faint for features (3 % of the contrast, shading 6 px wide)."""
+    faint = cv2.GaussianBlur(texture.astype(np.float32), (0, 0), 6.0)
+    return 120 + 0.03 * (faint - faint.mean()) / faint.std() * 255 / 4
+
+
 def run(texture, offsets, times=None, frames=None):
     odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
     out = []
@@ -152,8 +158,7 @@ def test_a_faint_wall_is_measured_by_the_dense_shift_with_a_lower_quality(textur
     odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
     rng = np.random.default_rng(5)
     # a lit wall with shading that moves, too faint for features: 3 % of the contrast
-    faint = cv2.GaussianBlur(texture.astype(np.float32), (0, 0), 6.0)
-    faint = 120 + 0.03 * (faint - faint.mean()) / faint.std() * 255 / 4
+    faint = faint_wall(texture)
     ests = []
     for i in range(60):
         if i < 10:
@@ -181,8 +186,7 @@ def test_a_frame_smoother_than_sensor_noise_is_not_measured_at_all(texture):
     # what still changes in it is the light (fixed in the image), not the wall: no dense shift of it.
     # The wall's shading here is as faint as the dense test's, the noise the encoder took away
     odo, _ = run(texture, np.arange(10) * 8.0)
-    faint = cv2.GaussianBlur(texture.astype(np.float32), (0, 0), 6.0)
-    faint = 120 + 0.03 * (faint - faint.mean()) / faint.std() * 255 / 4
+    faint = faint_wall(texture)
     energy, ests = [], []
     for i in range(10, 40):
         m = np.float32([[1, 0, 0], [0, 1, 8.0 * i - 5000]])
@@ -279,8 +283,7 @@ def test_a_faint_wall_braking_to_a_stand_is_measured_by_the_dense_shift_all_the_
     # 20 % of each other counted, and the brake went unseen
     odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
     rng = np.random.default_rng(5)
-    faint = cv2.GaussianBlur(texture.astype(np.float32), (0, 0), 6.0)
-    faint = 120 + 0.03 * (faint - faint.mean()) / faint.std() * 255 / 4
+    faint = faint_wall(texture)
     speeds = [8.0] * 30 + list(np.linspace(8.0, 0.0, 9)[1:]) + [0.0] * 12       # px a frame
     offsets = np.concatenate([[0.0], np.cumsum(speeds)])
     ests = []
@@ -304,8 +307,7 @@ def test_copied_frames_after_a_brake_to_a_crawl_are_a_stand_but_after_motion_no_
     # a faint wall whose frames the encoder copies once it stands still: the dense shift saw it slow
     # to under 2 px a frame, and a faint wall that moved would have changed the frames as it just
     # did, so the copies are a stand, measured. Copies right after 8 px a frame say nothing
-    faint = cv2.GaussianBlur(texture.astype(np.float32), (0, 0), 6.0)
-    faint = 120 + 0.03 * (faint - faint.mean()) / faint.std() * 255 / 4
+    faint = faint_wall(texture)
 
     def run_with(speeds):
         odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
