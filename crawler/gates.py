@@ -8,7 +8,9 @@
   a corrupt frame (model errors grow with the step; noise does not), until the new level has held.
 - Motion: a measured speed that changed faster than any crawler can since the last good frame
   (texture that stays put in the image while the wall moves: a specular highlight, blocks the encoder
-  copied) is refused, until it has said the same long enough to be a real stop (a collision).
+  copied) is refused, until it has said the same long enough to be a real stop (a collision). What
+  counts as faster allows for the jitter the believed speeds show lately: a car that pitches reads
+  its pitch as a few pixels of speed a frame.
 - Copies: after a gap, a frame the video encoder copied from the last one (almost no pixel changed)
   is no news of the motion. A camera's own frames always differ (sensor noise), and a moving
   textured wall cannot be copied; a smooth wall under a fixed highlight can, and its copied blocks
@@ -21,6 +23,7 @@
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import cv2
@@ -28,6 +31,9 @@ import numpy as np
 
 from .consensus import median
 from .flow import encoder_copy
+
+SPEED_NOISE_RATE = 0.05   # the speed's jitter is remembered over ~20 believed frames...
+SPEED_NOISE_MIN = 10      # ...and counts once 10 have shown it
 
 
 def reacquired(c, n_visible: int, p, m_per_px: float) -> bool:
@@ -48,6 +54,8 @@ class FrameGates:
         self._seen = 0
         self._rows = None             # every 8th row of the last frame, kept only inside a gap
         self._still = None            # (distance, picture where a stand began, its last frame's): _picture
+        self._dv_var, self._dv_n = 0.0, 0    # the variance of a believed speed's change from the last one's
+        self._dv = None                       # ...and that last change
 
     def textured(self, energy: float) -> bool:
         ref = self.texture_ref
@@ -93,7 +101,22 @@ class FrameGates:
             self.light_ref = grey if light is None else light + 4 * a * (grey - light)
 
     def measured(self, v: float, t_s: float):
-        """The speed of a frame that was believed."""
+        """The speed of a frame that was believed, and how it jitters: a car that pitches and bounces
+        moves the image by a few pixels a frame whatever it drives, which the tracks' raw step reads
+        as speed (at 40 deg with 0.5 deg of pitch, ~0.1 m/s from one frame to the next). The change
+        of the change drops a steady acceleration; clipped, one real stop does not widen the gate."""
+        if self.v_ref is not None and t_s > self.t_ref:
+            dv = v - self.v_ref
+            if self._dv is not None:
+                d2 = dv - self._dv
+                cap = 3.0 * max(math.sqrt(3.0 * self._dv_var), self.p.speed_tol_m_s)
+                d2 = max(-cap, min(cap, d2))
+                self._dv_n += 1
+                rate = max(1.0 / self._dv_n, SPEED_NOISE_RATE)
+                self._dv_var += rate * (d2 * d2 / 3.0 - self._dv_var)
+            self._dv = dv
+        else:
+            self._dv = None
         self.v_ref, self.t_ref = v, t_s
 
     def plausible(self, v: float, t_s: float) -> bool:
@@ -101,7 +124,9 @@ class FrameGates:
         p = self.p
         if self.v_ref is None:
             return True
-        if abs(v - self.v_ref) <= p.max_accel_m_s2 * (t_s - self.t_ref) + p.speed_tol_m_s:
+        jitter = math.sqrt(self._dv_var) if self._dv_n >= SPEED_NOISE_MIN else 0.0
+        tol = p.speed_tol_m_s + p.speed_jitter_k * jitter
+        if abs(v - self.v_ref) <= p.max_accel_m_s2 * (t_s - self.t_ref) + tol:
             self._refused_since = None
             return True
         if self._refused_since is None:

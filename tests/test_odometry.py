@@ -328,3 +328,26 @@ def test_copied_frames_after_a_brake_to_a_crawl_are_a_stand_but_after_motion_no_
     assert all(e.tracking for e in ests[-8:]) and ests[-1].distance_m == ests[-8].distance_m
     ests = run_with([8.0] * 30 + [0.0] * 12)                    # frozen at full speed: no stand
     assert not any(e.tracking for e in ests[-8:])
+
+
+def test_the_motion_gate_widens_with_the_jitter_a_shaking_car_shows_not_for_a_pull_to_a_stand():
+    """A car that pitches moves the image a few pixels a frame whatever it drives: the tracks' raw
+    speed jitters (at 40 deg with 0.5 deg of pitch, 0.05-0.1 m/s from one frame to the next). The
+    gate counts that jitter (the change of the change, so a steady acceleration is not jitter) three
+    times, on top of its floor: a frame of such a car is believed, not bridged (a photographed
+    gravel wall at 0.5 m/s lost 6 frames to it and ended +0.18 % instead of -0.09 %), while a pull
+    towards a stand (a highlight, copied blocks) is still refused, and a smooth run keeps its gate."""
+    from crawler.gates import FrameGates
+
+    rng = np.random.default_rng(2)
+    dt, p = 1 / 30, OdometryParams()
+    shaking, smooth = FrameGates(p), FrameGates(p)
+    for k in range(60):
+        t = k * dt
+        shaking.measured(0.5 + 0.2 * t + rng.normal(0.0, 0.04), t)    # accelerating at 0.2 m/s^2
+        smooth.measured(0.5 + 0.2 * t + rng.normal(0.0, 0.003), t)
+    t = 60 * dt
+    v = shaking.v_ref
+    assert shaking.plausible(v - 0.12, t)             # the jitter: believed
+    assert not shaking.plausible(0.05, t)             # a pull to a stand: refused
+    assert not smooth.plausible(smooth.v_ref - 0.12, t)
