@@ -14,6 +14,11 @@ On hw_sim's x264 recordings it was 0.03-0.07 px per keyframe at QP 34.5, 0.14-0.
 sign). sigma takes 0.4 px per keyframe at QP 43, scaled by the step squared: what this version
 cannot correct, it says (docs/accuracy.md, "Stress"). A live camera hands over raw frames: no
 quantiser, no term. docs/odometry.md, "Compressed recordings", has the figures.
+
+The energy the quantiser drops counts against the texture's own: a faint wall loses more of it. A
+photographed brick wall at a third of its contrast (fine texture 1.4-1.7 grey levels, against ~4 on
+the walls the model was fitted on) read 0.12 px short per keyframe at QP 28 and 0.30 px at QP 33,
+7-10x the model. Below REF_TEXTURE_DN the term grows as the square of the ratio.
 """
 
 from __future__ import annotations
@@ -28,11 +33,14 @@ def qstep(qp: float) -> float:
 
 REF_QP = 43.0
 REF_BIAS_PX = 0.4        # 1-sigma systematic shortfall of one keyframe's baseline at REF_QP
+REF_TEXTURE_DN = 4.0     # ...on a wall with this much fine texture as decoded (flow.texture_energy)
 
 
-def keyframe_bias_px(qp: float) -> float:
-    """1-sigma systematic error of one keyframe's baseline (pixels) at this mean QP."""
-    return REF_BIAS_PX * (qstep(qp) / qstep(REF_QP)) ** 2
+def keyframe_bias_px(qp: float, texture_dn: float | None = None) -> float:
+    """1-sigma systematic error of one keyframe's baseline (pixels) at this mean QP, on a wall with
+    this much fine texture (None: as the model's)."""
+    faint = 1.0 if not texture_dn or texture_dn >= REF_TEXTURE_DN else (REF_TEXTURE_DN / texture_dn) ** 2
+    return REF_BIAS_PX * (qstep(qp) / qstep(REF_QP)) ** 2 * faint
 
 
 class CodecBias:
@@ -46,15 +54,20 @@ class CodecBias:
         self.m_per_px = float(m_per_px)
         self._a = 1.0 / max(memory_frames, 1.0)
         self.qp: float | None = None
+        self.texture_dn: float | None = None
         self.sigma_m = 0.0
         self.keyframes = 0
 
-    def update(self, qp: float | None, keyframe_closed: bool) -> float:
-        """One frame: its mean QP (None: raw frames, or a decoder that does not say) and whether a
-        keyframe's baseline closed on it. The term so far, metres."""
+    def update(self, qp: float | None, keyframe_closed: bool, texture_dn: float | None = None) -> float:
+        """One frame: its mean QP (None: raw frames, or a decoder that does not say), whether a
+        keyframe's baseline closed on it, and its fine texture (a tracked frame's; None: not read).
+        The term so far, metres."""
         if qp is not None and math.isfinite(qp):
             self.qp = qp if self.qp is None else self.qp + self._a * (qp - self.qp)
+        if texture_dn is not None and math.isfinite(texture_dn) and texture_dn > 0:
+            tex = self.texture_dn
+            self.texture_dn = texture_dn if tex is None else tex + self._a * (texture_dn - tex)
         if keyframe_closed and self.qp is not None:
-            self.sigma_m += keyframe_bias_px(self.qp) * self.m_per_px
+            self.sigma_m += keyframe_bias_px(self.qp, self.texture_dn) * self.m_per_px
             self.keyframes += 1
         return self.sigma_m

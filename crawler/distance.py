@@ -30,7 +30,8 @@ class DistanceChain:
     def update(self, est, wheel_reading=None, qp: float | None = None):
         """`qp`: the frame's mean quantiser when it comes from a compressed recording."""
         b = self.bridge.update(est)
-        codec_m = self.codec.update(qp, est.keyframe and est.tracking and est.inliers > 0)
+        codec_m = self.codec.update(qp, est.keyframe and est.tracking and est.inliers > 0,
+                                    est.texture_dn if est.tracking else None)
         scale_m = math.hypot(codec_m, est.scale_sigma_m)   # the codec's, the tilt's, the ride's: they scale steps
         out = replace(est, distance_m=b.distance_m, sigma_m=math.hypot(b.sigma_m, scale_m), bridged=b.bridged,
                       source="model" if b.bridged else "vision", gap_s=b.gap_s)

@@ -35,6 +35,8 @@ class Estimate:
                                       # shift confirmed over several): that frame's (t_s, distance_m)
     scale_sigma_m: float = 0.0        # of distance_m, the 1 sigma a tilt (tilt auto) or a ride height
                                       # (crawler/ride.py) not known exactly leaves in the steps
+    texture_dn: float | None = None   # the frame's fine texture (flow.texture_energy): a faint wall loses
+                                      # more to a video encoder (crawler/codec.py)
     # filled in after the odometer (crawler/distance.py): the published distance's uncertainty and origin
     sigma_m: float | None = None
     bridged: bool = False
@@ -46,7 +48,7 @@ class Estimate:
 
     def as_dict(self) -> dict:
         d = dict(self.__dict__)
-        del d["rescaled_m"], d["since"], d["scale_sigma_m"]   # internal: sigma_m holds the last
+        del d["rescaled_m"], d["since"], d["scale_sigma_m"], d["texture_dn"]   # internal: sigma_m holds the last
         for k in ("distance_m", "lateral_m"):
             d[k] = round(d[k], 6)
         for k in ("speed_m_s", "roll_deg", "spread_mm", "sigma_m", "wheel_distance_m", "wheel_scale"):

@@ -106,6 +106,7 @@ class Odometer:
             est = self._start(roi, t_s) if self._kf is None else self._measure(roi, t_s)
             if est.tracking:
                 self._gates.remember(roi, energy)
+                est.texture_dn = energy
             return est
         finally:
             self._prev_t = t_s

@@ -17,6 +17,21 @@ def test_the_bias_follows_the_quantiser_step_squared():
     assert keyframe_bias_px(25) < 0.01                      # CRF 18: nothing to speak of
 
 
+def test_a_faint_wall_loses_more_to_the_quantiser():
+    """A photographed brick wall at a third of its contrast (1.4-1.7 grey levels of fine texture)
+    read 0.30 px short per keyframe at QP 33 and 0.12 px at 28: 7-10x what the model gives a wall
+    with 4 or more; the bound grows as the square of the texture's shortfall."""
+    assert keyframe_bias_px(33.45, 8.0) == keyframe_bias_px(33.45) == keyframe_bias_px(33.45, None)
+    assert keyframe_bias_px(33.45, 1.41) == pytest.approx(keyframe_bias_px(33.45) * (4.0 / 1.41) ** 2)
+    assert 0.30 < keyframe_bias_px(33.45, 1.41) < 0.45
+    assert 0.06 < keyframe_bias_px(27.86, 1.53) < 0.12     # 1 sigma: 2 sigma holds the 0.12 px measured
+    c = CodecBias(m_per_px=1e-3)
+    for _ in range(30):
+        c.update(33.0, False, 1.5)
+    c.update(33.0, True, float("nan"))                     # a frame whose texture was not read
+    assert c.texture_dn == pytest.approx(1.5) and c.sigma_m == pytest.approx(keyframe_bias_px(33.0, 1.5) * 1e-3)
+
+
 def test_the_term_adds_up_linearly_over_closed_keyframes_and_only_with_a_qp():
     c = CodecBias(m_per_px=5e-4)
     assert c.update(None, True) == 0.0                      # raw frames: no quantiser, no term
