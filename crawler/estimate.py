@@ -37,6 +37,8 @@ class Estimate:
                                       # (crawler/ride.py) not known exactly leaves in the steps
     texture_dn: float | None = None   # the frame's fine texture (flow.texture_energy): a faint wall loses
                                       # more to a video encoder (crawler/codec.py)
+    pitch_m: float = 0.0              # the car's pitch the tracks show, as wall metres (crawler/pose.py): what
+                                      # it moves a frame's distance by, when the estimate cannot follow it
     # filled in after the odometer (crawler/distance.py): the published distance's uncertainty and origin
     sigma_m: float | None = None
     bridged: bool = False
@@ -48,7 +50,8 @@ class Estimate:
 
     def as_dict(self) -> dict:
         d = dict(self.__dict__)
-        del d["rescaled_m"], d["since"], d["scale_sigma_m"], d["texture_dn"]   # internal: sigma_m holds the last
+        for k in ("rescaled_m", "since", "scale_sigma_m", "texture_dn", "pitch_m"):
+            del d[k]                  # internal: sigma_m holds what they say
         for k in ("distance_m", "lateral_m"):
             d[k] = round(d[k], 6)
         for k in ("speed_m_s", "roll_deg", "spread_mm", "sigma_m", "wheel_distance_m", "wheel_scale"):

@@ -68,6 +68,7 @@ class GapBridge:
         self._gap_prev_var = 0.0
         self._out_m = distance_m
         self._jitter_var, self._jitter_n = 0.0, 0   # the frame's pose/compression jitter (m^2), its count
+        self._pitch_m = 0.0           # the pitch the tracks showed lately (wall metres), if above the configured
         self._last2: list = []        # the last two measured (t, vision distance), for that
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
         self._remeasured_at = None    # when the odometer last measured its steps at a new tilt
@@ -148,7 +149,7 @@ class GapBridge:
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
         out = g.d0 + travel(self.p, g, T)
-        jitter = self._jitter_var + self.p.pose_sigma_m ** 2
+        jitter = self._jitter_var + max(self.p.pose_sigma_m, self._pitch_m) ** 2
         return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + jitter), True, step, T)
 
     # -- measured -------------------------------------------------------------------------------------
@@ -175,6 +176,7 @@ class GapBridge:
         if self._kf_vision is None:
             self._kf_vision = est.distance_m
         self._track_jitter(est)
+        self._pitch_m = getattr(est, "pitch_m", 0.0)    # (a plain estimate has none)
         step_var = self._step_var(est)
         if est.keyframe:              # the keyframe's step is closed: its error is carried from now on
             self.var_meas += step_var
@@ -185,7 +187,7 @@ class GapBridge:
         self._hist.append((est.t_s, self._out_m))
         while self._hist and self._hist[0][0] < est.t_s - 2 * self.p.history_s:
             self._hist.popleft()
-        jitter = self._jitter_var + self.p.pose_sigma_m ** 2
+        jitter = self._jitter_var + max(self.p.pose_sigma_m, self._pitch_m) ** 2
         total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var) + jitter
         if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
             g = self._gap

@@ -397,4 +397,4 @@ class Odometer:
             lateral_m=self.lateral, roll_deg=math.degrees(self.lateral / r) if r else None,
             tracking=tracking, quality=quality, tracks=n_tracked, inliers=n_in,
             spread_mm=None if sigma is None else sigma * 1000.0, keyframe=keyframe,
-            scale_sigma_m=self.pose.scale_sigma_m)
+            scale_sigma_m=self.pose.scale_sigma_m, pitch_m=self.pose.pitch_shown_rad * self.m_per_px * self.camera.fy)

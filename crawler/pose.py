@@ -74,6 +74,7 @@ class NullPose:
     """The odometer without a pose estimate: the mount is what the configuration says."""
 
     active = False
+    pitch_shown_rad = 0.0     # the car's pitch the tracks show: none read
 
     def __init__(self, tilt_deg: float | None = None):
         self.tilt_deg = tilt_deg
@@ -130,6 +131,7 @@ class PoseEstimator:
         self._ride_read = [i for i in _RIDE_READ if self._keep[i]]   # what its height change is read with
         self._read_dh = None                       # the last measured frame's information: its height change
         self._kf_at = None                         # the last keyframe's (distance, time)
+        self.pitch_shown_rad = 0.0                 # the pitch the tracks show, beyond the configured too
 
     @property
     def projection(self):
@@ -320,6 +322,7 @@ class PoseEstimator:
             level = e[i] / u[i] if u[i] > 0 else 0.0
             sig.append(min(self._limit[i], math.sqrt(max(level, 0.0))))
         self._sig = sig
+        self.pitch_shown_rad = math.sqrt(max(e[PITCH] / u[PITCH], 0.0)) if u[PITCH] > 0 else 0.0
         if self.ride:
             self._read_dh = (hh, hz, zz, rows)
         return sigma

@@ -541,3 +541,59 @@ def test_a_step_measured_again_at_the_found_tilt_reads_its_tracks_as_the_odomete
     assert new is not None and abs(new.mount.tilt_deg - 40.0) < 1e-9
     assert abs(hop.d - 0.01) < 1e-6                    # the plain mean: 0.0102
     assert abs(hop.d - float(np.mean(dy)) - extra) < 1e-12
+
+
+def test_the_pitch_a_car_shows_beyond_the_configured_is_said_in_sigma():
+    """The pose filter holds the car's pitch to the configured level (`pitch_jitter_deg`, 0.25 deg)
+    so that a smooth run gets none it does not show; a car that pitches 0.6 deg moves each frame's
+    distance by more than it can follow. What the tracks show goes into every frame's sigma
+    (crawler/gaps.py): on photographed gravel with 0.5 deg of pitch 68-85 % of frames were within
+    2 sigma before."""
+    from dataclasses import replace
+
+    from crawler.geometry import make_projection
+    from crawler.measurement import recording_camera, thesis_roi
+    from crawler.pose import PoseEstimator, PoseParams
+
+    cam = recording_camera(S.CameraSettings())
+    roi = thesis_roi(cam.width, cam.height)
+    mount = S.MountSettings(tilt_deg=24.0).mount()
+
+    def shown(pitch_deg):
+        pose = PoseEstimator(cam, make_projection("cylinder", mount), roi, PoseParams(pitch_sigma_deg=0.25))
+        rng = np.random.default_rng(4)
+
+        def seen(wall, t):
+            true = make_projection("cylinder", replace(
+                mount, tilt_rad=mount.tilt_rad + math.radians(pitch_deg * math.sin(2 * math.pi * 1.5 * t))))
+            return cam.to_pixels(true.to_image(wall - [0.0, 0.2 * t])) - roi[:2]
+
+        t = 0.0
+        for _ in range(40):
+            x, y, w, h = roi
+            start = np.column_stack([x + rng.uniform(0, w, 30), y + rng.uniform(0, h / 2, 30)])
+            wall = pose.projection.to_wall(cam.normalise(start)) + [0.0, 0.2 * t]
+            for _ in _keyframe(pose, cam, roi, seen, wall, t, 4, rng):
+                pass
+            t += 4 / 30
+        return math.degrees(pose.pitch_shown_rad)
+
+    assert shown(0.6 * math.sqrt(2)) > 0.45          # 0.6 deg r.m.s.: shown, beyond the 0.25 configured
+    assert shown(0.0) < 0.05                          # a still car: nothing
+
+
+def test_the_bridge_counts_the_pitch_shown_when_it_is_above_the_configured():
+    from types import SimpleNamespace
+
+    from crawler.gaps import BridgeParams, GapBridge
+
+    def last_sigma(pitch_m):
+        bridge = GapBridge(BridgeParams(pose_sigma_m=0.001))
+        for k in range(30):
+            b = bridge.update(SimpleNamespace(t_s=k / 30, distance_m=0.01 * k, tracking=True, continuous=True,
+                                              keyframe=k % 5 == 0, spread_mm=0.02, inliers=40, speed_m_s=None,
+                                              pitch_m=pitch_m))
+        return b.sigma_m
+
+    assert last_sigma(0.0) == last_sigma(0.0005) < 0.0015     # below the configured: the configured
+    assert last_sigma(0.003) > 0.003                          # above it: what the tracks show
