@@ -315,14 +315,14 @@ class PoseEstimator:
             d[i], cov[i] = read[j], diag[j] * var
         memory = math.exp(-1.0 / (30.0 * self.p.level_memory_s))    # per frame, at ~30 fps
         since = max(since_kf, 0.0)
-        (e, u), sig = self._level, []
+        (e, u), shown = self._level, []
         for i, tau in enumerate(self._tau):
             e[i] = e[i] * memory + d[i] * d[i] - cov[i]
             u[i] = u[i] * memory + 2.0 * (1.0 - math.exp(-since / tau))
             level = e[i] / u[i] if u[i] > 0 else 0.0
-            sig.append(min(self._limit[i], math.sqrt(max(level, 0.0))))
-        self._sig = sig
-        self.pitch_shown_rad = math.sqrt(max(e[PITCH] / u[PITCH], 0.0)) if u[PITCH] > 0 else 0.0
+            shown.append(math.sqrt(max(level, 0.0)))
+        self._sig = [min(limit, s) for limit, s in zip(self._limit, shown)]
+        self.pitch_shown_rad = shown[PITCH]
         if self.ride:
             self._read_dh = (hh, hz, zz, rows)
         return sigma
