@@ -30,6 +30,7 @@ import cv2
 import numpy as np
 
 from .consensus import median
+from .codec import REF_TEXTURE_DN
 from .flow import encoder_copy
 
 SPEED_NOISE_RATE = 0.05   # the speed's jitter is remembered over ~20 believed frames...
@@ -73,6 +74,21 @@ class FrameGates:
         if not in_gap or prev is None or prev.shape != rows.shape:
             return False
         return encoder_copy(rows, prev, self.p.dense.min_changed)
+
+    def copied_tracks(self, kf, roi, idx, gap_since: float | None) -> bool:
+        """Inside a gap (it began at gap_since), are the tracks' patches faint copies of the
+        keyframe's, pixel for pixel? The encoder copies the blocks of a smooth wall under a fixed
+        highlight while it codes the rest anew: the frame is no copy, but tracks on those blocks read
+        a stand that says nothing. Patches of real texture (above REF_TEXTURE_DN, what the quantiser
+        keeps) are copied only if the wall stood: those are a stand."""
+        if gap_since is None or not len(idx):
+            return False
+        ys, xs = _patches(kf.pts.take(idx, 0), roi.shape)
+        now, then = roi[ys, xs].reshape(len(idx), -1), kf.img[ys, xs].reshape(len(idx), -1)
+        if not encoder_copy(now, then, self.p.dense.min_changed):
+            return False
+        fine = np.abs(np.diff(roi[ys, xs].astype(np.int16), axis=2)).mean()   # as flow.texture_energy
+        return float(fine) < REF_TEXTURE_DN
 
     def morphed(self, kf, roi, at_m: float, still_m: float) -> bool:
         """Does a frame the tracks put within still_m of where the stand began (at_m: its distance)
@@ -168,6 +184,15 @@ class SpreadGate:
 
 def _grey(roi) -> float:
     return float(cv2.mean(roi[::8, ::8])[0])
+
+
+def _patches(pts, shape, r: int = 3):
+    """Row and column indices of the (2r + 1)^2 pixels around each point, kept inside the image."""
+    h, w = shape
+    x = np.clip(np.rint(pts[:, 0]).astype(np.intp), r, w - r - 1)
+    y = np.clip(np.rint(pts[:, 1]).astype(np.intp), r, h - r - 1)
+    off = np.arange(-r, r + 1)
+    return y[:, None, None] + off[None, :, None], x[:, None, None] + off[None, None, :]
 
 
 def _picture(img) -> np.ndarray:

@@ -282,7 +282,8 @@ class Odometer:
         c = self._consensus(idx, pts1, t_s) if len(idx) >= p.min_tracks else None
         clear = c is not None and (not self._resumed or reacquired(c, n_visible, p, self.m_per_px))
         morphed = c is not None and self._gates.morphed(kf, img, kf.distance + c.step, p.still_px * self.m_per_px)
-        if c is not None and (morphed or self._copy or not (self._plausible(c, t_s) and clear)):
+        copy = self._copy or (c is not None and self._gates.copied_tracks(kf, img, c.idx, self._unmeasured_since))
+        if c is not None and (morphed or copy or not (self._plausible(c, t_s) and clear)):
             c = None
         if c is None:      # a keyframe the encoder morphed away from is not worn out: no rescue from it
             if rescue and not morphed and self._good_roi is not None and kf.t_s < self._last_good_t:
@@ -376,8 +377,7 @@ class Odometer:
         self.lost_frames, self._prev_pts = self.lost_frames + 1, None
         if self._unmeasured_since is None:
             self._unmeasured_since = t_s
-        renewed = False
-        p = self.params
+        renewed, p = False, self.params
         if self.lost_frames > p.max_lost_frames or t_s - self._last_good_t > p.max_lost_s or n_visible < p.min_tracks:
             renewed = self._new_keyframe(img, t_s)
             # the crawler goes on at about the speed it had: the next guess starts there
