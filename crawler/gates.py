@@ -57,6 +57,7 @@ class FrameGates:
         self._still = None            # (distance, picture where a stand began, its last frame's): _picture
         self._dv_var, self._dv_n = 0.0, 0    # the variance of a believed speed's change from the last one's
         self._dv = None                       # ...and that last change
+        self._after_gap = False       # from a gap until the tracks see the wall move: copies say nothing
 
     def textured(self, energy: float) -> bool:
         ref = self.texture_ref
@@ -75,16 +76,22 @@ class FrameGates:
             return False
         return encoder_copy(rows, prev, self.p.dense.min_changed)
 
-    def copied_tracks(self, kf, roi, idx, gap_since: float | None) -> bool:
-        """Inside a gap (it began at gap_since), are the tracks' patches faint copies of the
-        keyframe's, pixel for pixel? The encoder copies the blocks of a smooth wall under a fixed
-        highlight while it codes the rest anew: the frame is no copy, but tracks on those blocks read
-        a stand that says nothing. Patches of real texture (above REF_TEXTURE_DN, what the quantiser
-        keeps) are copied only if the wall stood: those are a stand."""
-        if gap_since is None or not len(idx):
+    def copied_tracks(self, kf, roi, c, gap_since: float | None) -> bool:
+        """From a gap (it began at gap_since) until the tracks see the wall move, are the consensus
+        c's patches faint copies of the keyframe's, pixel for pixel? The encoder copies the blocks
+        of a smooth wall under a fixed highlight while it codes the rest anew: the frame is no copy,
+        but tracks on those blocks read a stand that says nothing, also against a keyframe started
+        afresh in the gap. Patches of real texture (above REF_TEXTURE_DN, what the quantiser keeps)
+        are copied only if the wall stood: those are a stand."""
+        self._after_gap = self._after_gap or gap_since is not None
+        if not self._after_gap or not len(c.idx):
             return False
-        ys, xs = _patches(kf.pts.take(idx, 0), roi.shape)
-        now, then = roi[ys, xs].reshape(len(idx), -1), kf.img[ys, xs].reshape(len(idx), -1)
+        at = kf.pts.take(c.idx, 0)
+        if float(np.hypot(*np.median(c.pts - at, axis=0))) >= self.p.still_px:
+            self._after_gap = False                     # the wall is seen to move: the gap is over
+            return False
+        ys, xs = _patches(at, roi.shape)
+        now, then = roi[ys, xs].reshape(len(at), -1), kf.img[ys, xs].reshape(len(at), -1)
         if not encoder_copy(now, then, self.p.dense.min_changed):
             return False
         fine = np.abs(np.diff(roi[ys, xs].astype(np.int16), axis=2)).mean()   # as flow.texture_energy

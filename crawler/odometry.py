@@ -282,7 +282,7 @@ class Odometer:
         c = self._consensus(idx, pts1, t_s) if len(idx) >= p.min_tracks else None
         clear = c is not None and (not self._resumed or reacquired(c, n_visible, p, self.m_per_px))
         morphed = c is not None and self._gates.morphed(kf, img, kf.distance + c.step, p.still_px * self.m_per_px)
-        copy = self._copy or (c is not None and self._gates.copied_tracks(kf, img, c.idx, self._unmeasured_since))
+        copy = self._copy or (c is not None and self._gates.copied_tracks(kf, img, c, self._unmeasured_since))
         if c is not None and (morphed or copy or not (self._plausible(c, t_s) and clear)):
             c = None
         if c is None:      # a keyframe the encoder morphed away from is not worn out: no rescue from it
