@@ -91,11 +91,12 @@ class DenseShift:
         self._last_dv = None
         self._pending.append((*found, since))
         recent = [dv for (_, dv), _, _ in self._pending[-self.p.confirm:]]
-        if len(recent) < self.p.confirm or not self._steady(recent) or sum(map(abs, recent)) < self.p.stop_px * len(recent):
-            # ...nor shifts that all read next to no motion, with no brake seen before them: a wall
-            # that stands is all running mean, and a camera's frames of it flat-field to noise that
-            # does not correlate. Only what stays put in the image does (the encoder's copies, a
-            # highlight's residue): the crawler may be driving on under it
+        # next to no motion with no brake seen before it is not believed either: a wall that stands
+        # becomes the running mean, and a camera's frames of it flat-field to noise that does not
+        # correlate. Only what stays put in the image does (the encoder's copied blocks, what is
+        # left of a highlight), while the crawler may drive on under it
+        still = sum(map(abs, recent)) < self.p.stop_px * len(recent)
+        if len(recent) < self.p.confirm or not self._steady(recent) or still:
             self._pending = self._pending[-(self.p.confirm - 1):]
             return None
         du = sum(s[0] for s, _, _ in self._pending)

@@ -15,6 +15,8 @@
   is no news of the motion. A camera's own frames always differ (sensor noise), and a moving
   textured wall cannot be copied; a smooth wall under a fixed highlight can, and its copied blocks
   read as a stand. The motion gate cannot tell that from a stop in the gap, so a copy never ends one.
+  Nor, from a gap until the wall is seen to move, do tracks on faint patches the encoder copied
+  while it coded the rest of the frame anew.
 - Stands: a standstill keeps the picture. Tracks that read no motion while the frame grows less
   like the picture where the stand began than like the frame before read an encoder that lost the
   motion (CRF 40 at a recording's start re-codes the still picture frame after frame as the crawler
