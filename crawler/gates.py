@@ -37,6 +37,9 @@ from .flow import encoder_copy
 
 SPEED_NOISE_RATE = 0.05   # the speed's jitter is remembered over ~20 believed frames...
 SPEED_NOISE_MIN = 10      # ...and counts once 10 have shown it
+REMATCH_NCC = 0.3         # a match across a gap whose patches' fine texture correlates less is not the wall's...
+REMATCH_AFTER_S = 0.2     # ...once this long blind: over a few frames the guess stays on the wall, and at CRF 40
+                          # the encoder leaves a wall's fine texture only as blocks
 
 
 def reacquired(c, n_visible: int, p, m_per_px: float) -> bool:
@@ -77,6 +80,26 @@ class FrameGates:
         if not in_gap or prev is None or prev.shape != rows.shape:
             return False
         return encoder_copy(rows, prev, self.p.dense.min_changed)
+
+    def tracks_say_nothing(self, kf, roi, c, gap_since: float | None, blind_s: float) -> bool:
+        """After a gap, is the consensus c no news of the wall: tracks on faint copies
+        (`copied_tracks`), or, blind_s after the last measured frame, a match that is not the
+        wall's (`wall_matched`)?"""
+        if self.copied_tracks(kf, roi, c, gap_since):
+            return True
+        return blind_s > REMATCH_AFTER_S and not self.wall_matched(kf, roi, c)
+
+    def wall_matched(self, kf, roi, c) -> bool:
+        """Do the tracks' patches show the keyframe's fine texture where they found it? Across a gap
+        the wide search can lock onto what stays put in the image (the LED's highlight, the light's
+        fall-off): smooth, so once the shading is taken out its patches correlate only by their
+        noise, where a match on the wall keeps the wall's grain (a wet brick wall re-acquired on the
+        highlight after 3 s: 0.21; a wall after a burst of dropped frames: 0.61)."""
+        if not len(c.idx):
+            return True
+        now, then = _fine_patches(roi, c.pts), _fine_patches(kf.img, kf.pts.take(c.idx, 0))
+        ncc = (now * then).sum(1) / np.sqrt((now * now).sum(1) * (then * then).sum(1) + 1e-9)
+        return float(np.median(ncc)) >= REMATCH_NCC
 
     def copied_tracks(self, kf, roi, c, gap_since: float | None) -> bool:
         """From a gap (it began at gap_since) until the tracks see the wall move, are the consensus
@@ -202,6 +225,18 @@ def _patches(pts, shape, r: int = 3):
     y = np.clip(np.rint(pts[:, 1]).astype(np.intp), r, h - r - 1)
     off = np.arange(-r, r + 1)
     return y[:, None, None] + off[None, :, None], x[:, None, None] + off[None, None, :]
+
+
+def _fine_patches(img, pts, r: int = 4) -> np.ndarray:
+    """The (2r + 1)^2 pixels around each point of the image's fine texture (a Laplacian of a
+    Gaussian of 0.8 px: the shading taken out), each patch zero-mean: n x (2r + 1)^2."""
+    x0, y0 = np.maximum(np.floor(pts.min(0)).astype(int) - r - 3, 0)
+    x1, y1 = np.ceil(pts.max(0)).astype(int) + r + 4
+    crop = img[y0:y1, x0:x1].astype(np.float32)
+    fine = cv2.Laplacian(cv2.GaussianBlur(crop, (0, 0), 0.8), cv2.CV_32F)
+    ys, xs = _patches(pts - (x0, y0), fine.shape, r)
+    out = fine[ys, xs].reshape(len(pts), -1)
+    return out - out.mean(1, keepdims=True)
 
 
 def _picture(img) -> np.ndarray:

@@ -282,8 +282,9 @@ class Odometer:
         c = self._consensus(idx, pts1, t_s) if len(idx) >= p.min_tracks else None
         clear = c is not None and (not self._resumed or reacquired(c, n_visible, p, self.m_per_px))
         morphed = c is not None and self._gates.morphed(kf, img, kf.distance + c.step, p.still_px * self.m_per_px)
-        copy = self._copy or (c is not None and self._gates.copied_tracks(kf, img, c, self._unmeasured_since))
-        if c is not None and (morphed or copy or not (self._plausible(c, t_s) and clear)):
+        mute = self._copy or (c is not None and self._gates.tracks_say_nothing(
+            kf, img, c, self._unmeasured_since, t_s - self._last_good_t))
+        if c is not None and (morphed or mute or not (self._plausible(c, t_s) and clear)):
             c = None
         if c is None:      # a keyframe the encoder morphed away from is not worn out: no rescue from it
             if rescue and not morphed and self._good_roi is not None and kf.t_s < self._last_good_t:
@@ -333,8 +334,7 @@ class Odometer:
 
     def _blind(self, t_s) -> Estimate:
         """A frame with nothing to measure (dark, featureless): lost, the keyframe kept for later."""
-        self.lost_frames += 1
-        self._prev_pts = None
+        self.lost_frames, self._prev_pts = self.lost_frames + 1, None
         if self._unmeasured_since is None:
             self._unmeasured_since = t_s
         return self._estimate(t_s, False, 0, 0, None, keyframe=False)
