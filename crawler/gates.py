@@ -116,10 +116,10 @@ class FrameGates:
             self._after_gap = False                     # the wall is seen to move: the gap is over
             return False
         ys, xs = _patches(at, roi.shape)
-        now, then = roi[ys, xs].reshape(len(at), -1), kf.img[ys, xs].reshape(len(at), -1)
-        if not encoder_copy(now, then, self.p.dense.min_changed):
+        now = roi[ys, xs]                               # n x 7 x 7
+        if not encoder_copy(now.reshape(len(at), -1), kf.img[ys, xs].reshape(len(at), -1), self.p.dense.min_changed):
             return False
-        fine = np.abs(np.diff(roi[ys, xs].astype(np.int16), axis=2)).mean()   # as flow.texture_energy
+        fine = np.abs(np.diff(now.astype(np.int16), axis=2)).mean()   # as flow.texture_energy, every row
         return float(fine) < REF_TEXTURE_DN
 
     def morphed(self, kf, roi, at_m: float, still_m: float) -> bool:
