@@ -2,6 +2,7 @@
 
 robust_step: one step from many per-feature displacements (median/MAD, then the inliers' mean).
 SpeedFilter: a least-squares speed over time, not frames, so dropped frames add noise, never bias.
+FadingMean: a mean that is plain until its memory is full, then forgets the oldest at a fixed rate.
 """
 
 from __future__ import annotations
@@ -50,6 +51,19 @@ def rolling_shutter(moved, idx, pts, dt: float, row_t_now, row_t_kf, min_span_sh
 def median(values) -> float:
     v = sorted(values)
     return v[len(v) // 2]
+
+
+class FadingMean:
+    """The mean of the values added: a plain mean for the first 1 / rate, then each new one weighs
+    `rate` (a level that may drift, learned as fast as the values allow). `n`: how many so far."""
+
+    def __init__(self, rate: float):
+        self.rate, self.n, self.value = rate, 0, 0.0
+
+    def add(self, x: float) -> float:
+        self.n += 1
+        self.value += max(1.0 / self.n, self.rate) * (x - self.value)
+        return self.value
 
 
 class SpeedFilter:

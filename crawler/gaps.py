@@ -36,6 +36,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+from .consensus import FadingMean
 from .gapmodel import BridgeParams, Gap, model_var, settled_travel, stops, travel
 from .motionfit import ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured, slope as _slope
 
@@ -67,7 +68,7 @@ class GapBridge:
                                       # the odometer calls continuous after it is continuous with it only
         self._gap_prev_var = 0.0
         self._out_m = distance_m
-        self._jitter_var, self._jitter_n = 0.0, 0   # the frame's pose/compression jitter (m^2), its count
+        self._jitter = FadingMean(self.p.jitter_memory)   # the frame's pose/compression jitter (m^2)
         self._pitch_m = 0.0           # the pitch the tracks showed lately (wall metres), if above the configured
         self._last2: list = []        # the last two measured (t, vision distance), for that
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
@@ -149,7 +150,7 @@ class GapBridge:
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
         out = g.d0 + travel(self.p, g, T)
-        jitter = self._jitter_var + max(self.p.pose_sigma_m, self._pitch_m) ** 2
+        jitter = self._jitter.value + max(self.p.pose_sigma_m, self._pitch_m) ** 2
         return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + jitter), True, step, T)
 
     # -- measured -------------------------------------------------------------------------------------
@@ -187,13 +188,13 @@ class GapBridge:
         self._hist.append((est.t_s, self._out_m))
         while self._hist and self._hist[0][0] < est.t_s - 2 * self.p.history_s:
             self._hist.popleft()
-        jitter = self._jitter_var + max(self.p.pose_sigma_m, self._pitch_m) ** 2
+        jitter = self._jitter.value + max(self.p.pose_sigma_m, self._pitch_m) ** 2
         total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var) + jitter
         if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
             g = self._gap
             total += model_var(self.p, self._settling[0] - g.t0, g.v0, sa=g.sa)
         # for the fusion: the white part only (the pose term is slow, a filter must not average it)
-        noise = math.hypot(self._frame_noise(est), math.sqrt(self._jitter_var))
+        noise = math.hypot(self._frame_noise(est), math.sqrt(self._jitter.value))
         return Bridged(self._out_m, math.sqrt(total), False, noise, gap_T)
 
     def _track_jitter(self, est):
@@ -212,10 +213,8 @@ class GapBridge:
             return
         r = (t2 - t1) / (t1 - t0)
         resid2 = (d2 - d1 - (d1 - d0) * r) ** 2 / (1 + (1 + r) ** 2 + r * r)
-        v, self._jitter_n = self._jitter_var, self._jitter_n + 1
-        resid2 = min(resid2, 9 * v) if v > 0 else resid2    # one bad frame does not set the level
-        a = max(self.p.jitter_memory, 1.0 / self._jitter_n)  # a plain mean until the memory is full
-        self._jitter_var = v + a * (resid2 - v)
+        v = self._jitter.value
+        self._jitter.add(min(resid2, 9 * v) if v > 0 else resid2)    # one bad frame does not set the level
 
     def _frame_noise(self, est) -> float:
         spread = (est.spread_mm or 0.0) / 1000.0

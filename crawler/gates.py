@@ -31,8 +31,8 @@ from collections import deque
 import cv2
 import numpy as np
 
-from .consensus import median
 from .codec import REF_TEXTURE_DN
+from .consensus import FadingMean, median
 from .flow import encoder_copy
 
 SPEED_NOISE_RATE = 0.05   # the speed's jitter is remembered over ~20 believed frames...
@@ -60,7 +60,7 @@ class FrameGates:
         self._seen = 0
         self._rows = None             # every 8th row of the last frame, kept only inside a gap
         self._still = None            # (distance, picture where a stand began, its last frame's): _picture
-        self._dv_var, self._dv_n = 0.0, 0    # the variance of a believed speed's change from the last one's
+        self._dv_var = FadingMean(SPEED_NOISE_RATE)   # the variance of a believed speed's change from the last one's
         self._dv = None                       # ...and that last change
         self._after_gap = False       # from a gap until the tracks see the wall move: copies say nothing
 
@@ -157,11 +157,9 @@ class FrameGates:
             dv = v - self.v_ref
             if self._dv is not None:
                 d2 = dv - self._dv
-                cap = 3.0 * max(math.sqrt(3.0 * self._dv_var), self.p.speed_tol_m_s)
+                cap = 3.0 * max(math.sqrt(3.0 * self._dv_var.value), self.p.speed_tol_m_s)
                 d2 = max(-cap, min(cap, d2))
-                self._dv_n += 1
-                rate = max(1.0 / self._dv_n, SPEED_NOISE_RATE)
-                self._dv_var += rate * (d2 * d2 / 3.0 - self._dv_var)
+                self._dv_var.add(d2 * d2 / 3.0)
             self._dv = dv
         else:
             self._dv = None
@@ -172,7 +170,7 @@ class FrameGates:
         p = self.p
         if self.v_ref is None:
             return True
-        jitter = math.sqrt(self._dv_var) if self._dv_n >= SPEED_NOISE_MIN else 0.0
+        jitter = math.sqrt(self._dv_var.value) if self._dv_var.n >= SPEED_NOISE_MIN else 0.0
         tol = p.speed_tol_m_s + p.speed_jitter_k * jitter
         if abs(v - self.v_ref) <= p.max_accel_m_s2 * (t_s - self.t_ref) + tol:
             self._refused_since = None

@@ -30,6 +30,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .consensus import FadingMean
 
 SAMPLED_RATE = 0.1      # the sampled scatter is remembered over ~10 handovers...
 SAMPLED_MIN = 5         # ...and known after 5: before, no level
@@ -57,9 +58,8 @@ class RideHeight:
         self.level_m = 0.0        # the applied level: 0 until it is significant
         self.sigma_m = 0.0        # the smoothed chain's noise when no level is there
         self.spent_sigma_m = 0.0  # what the levels applied leave in the distance: their sigma times the metres
-        self.sampled_var = 0.0    # the height's own scatter about its trend, as the handovers sample it
+        self.sampled = FadingMean(SAMPLED_RATE)   # the height's own scatter about its trend, as the handovers sample it
         self._last_change = None
-        self._changes = 0
 
     def handover(self, change_m: float, var_m2: float, moved_m: float, dt_s: float,
                  bounce_m: float, bounce_tau_s: float) -> float:
@@ -80,7 +80,7 @@ class RideHeight:
         left = max(left, self._sampled(change_m) * a / (2.0 - a))
         self.sigma_m = math.sqrt(self.chain_var + left)
         threshold = self.p.k_sigma * self.sigma_m
-        sure = self.sigma_m <= self.p.max_sigma * self.height_m and self._changes >= SAMPLED_MIN
+        sure = self.sigma_m <= self.p.max_sigma * self.height_m and self.sampled.n >= SAMPLED_MIN
         if sure and (abs(self.smooth) > threshold or (self.level_m and abs(self.smooth) > 0.5 * threshold)):
             self.level_m = self.smooth
         else:
@@ -94,8 +94,6 @@ class RideHeight:
         Successive changes share their middle height, so c_k - c_(k-1) = h_k - 2 h_(k-1) + h_(k-2):
         its square is 6 times the variance, and a bank's steady rise drops out of it."""
         if self._last_change is not None:
-            self._changes += 1
-            rate = max(1.0 / self._changes, SAMPLED_RATE)
-            self.sampled_var += rate * ((change_m - self._last_change) ** 2 / 6.0 - self.sampled_var)
+            self.sampled.add((change_m - self._last_change) ** 2 / 6.0)
         self._last_change = change_m
-        return self.sampled_var
+        return self.sampled.value
