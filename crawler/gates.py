@@ -56,7 +56,8 @@ class FrameGates:
         self.light_ref = None         # ...and their mean grey level
         self.v_ref = None             # the speed measured at the last good frame (m/s), None: not yet
         self.t_ref = 0.0              # ...and when
-        self._refused_since = None    # the first of a run of refused measurements
+        self._refused_since = None    # the first of a run of refused measurements...
+        self._refused_pulled = False  # ...and whether under shading that stays put (plausible)
         self._seen = 0
         self._rows = None             # every 8th row of the last frame, kept only inside a gap
         self._still = None            # (distance, picture where a stand began, its last frame's): _picture
@@ -165,20 +166,28 @@ class FrameGates:
             self._dv = None
         self.v_ref, self.t_ref = v, t_s
 
-    def plausible(self, v: float, t_s: float) -> bool:
-        """Could the crawler have gone from v_ref (at t_ref) to v by t_s?"""
+    def plausible(self, v: float, t_s: float, pulled: bool = False, frame_s: float = 0.0) -> bool:
+        """Could the crawler have gone from v_ref (at t_ref) to v by t_s? `pulled`: read on a
+        keyframe under shading that stays put in the image (flow.static_pull), which pulls the
+        tracks toward a stand; there a stand must be seen coming, from a speed one frame (frame_s)
+        of braking can stop, and a sudden one is never taken for a collision."""
         p = self.p
         if self.v_ref is None:
             return True
         jitter = math.sqrt(self._dv_var.value) if self._dv_var.n >= SPEED_NOISE_MIN else 0.0
         tol = p.speed_tol_m_s + p.speed_jitter_k * jitter
-        if abs(v - self.v_ref) <= p.max_accel_m_s2 * (t_s - self.t_ref) + tol:
+        pulled = pulled or (self._refused_since is not None and self._refused_pulled)   # while refused
+        since = t_s
+        if pulled and abs(v) <= p.speed_tol_m_s:      # a stand read under a pull: a jitter is no stand
+            since, tol = self.t_ref + frame_s, p.speed_tol_m_s
+        if abs(v - self.v_ref) <= p.max_accel_m_s2 * (min(since, t_s) - self.t_ref) + tol:
             self._refused_since = None
             return True
         if self._refused_since is None:
             self._refused_since = t_s
-        if t_s - self._refused_since >= p.max_refusal_s:
-            self._refused_since = None
+        self._refused_pulled = pulled
+        if t_s - self._refused_since >= p.max_refusal_s and not pulled:
+            self._refused_since = None        # said the same long enough: a collision is real
             return True
         return False
 

@@ -272,10 +272,10 @@ class Odometer:
         return c if enough and self._spread.calm(c.step, c.sigma, c.ratio) else None
 
     def _plausible(self, c: Consensus, t_s: float) -> bool:
-        """The speed of this frame since the last good one (a fresh keyframe counts as one) against
-        the speed measured before any gap (gates.py)."""
+        """The speed since the last good frame (a fresh keyframe counts as one) against the one before (gates.py)."""
         dt = t_s - self._last_good_t
-        return dt <= 0 or self._gates.plausible((c.step - self._last_step) / dt, t_s)
+        return dt <= 0 or self._gates.plausible((c.step - self._last_step) / dt, t_s, self._kf.flat,
+                                                 min(dt, t_s - (self._prev_t or 0.0)))
 
     def _measure(self, img, t_s, rescue: bool = True) -> Estimate:
         (idx, pts1, n_visible), p, kf = self._track_guessed(img, t_s), self.params, self._kf

@@ -353,6 +353,62 @@ def test_the_motion_gate_widens_with_the_jitter_a_shaking_car_shows_not_for_a_pu
     assert not smooth.plausible(smooth.v_ref - 0.12, t)
 
 
+def test_under_shading_that_stays_put_a_stand_must_be_seen_coming():
+    """On a keyframe under the LED's highlight (a pull toward no motion, flow.static_pull) tracks on
+    the highlight and on mortar lines along the motion read a stand, frame after frame, while the
+    crawler drives at 0.1 m/s through a wet stretch (a photographed brick wall: -34.9 % with 32 % of
+    frames within 2 sigma, +0.24 % with 100 % now). A slow crawler can stop within two frames, so
+    the gate let it through; and after a second of refusals it was taken for a collision. Under a
+    pull a stand is judged as if it began one frame after the last believed speed, and it is never
+    a collision; a brake seen frame by frame still ends in a stand, and without a pull nothing
+    changes."""
+    from crawler.gates import FrameGates
+
+    dt, p = 1 / 30, OdometryParams()
+
+    def cruising(v=0.1, frames=30):
+        g = FrameGates(p)
+        for k in range(frames):
+            g.measured(v, k * dt)
+        return g, (frames - 1) * dt                           # the last believed frame's time
+
+    pulled, t = cruising()
+    plain, _ = cruising()
+    refused = [pulled.plausible(0.0, t + k * dt, True, dt) for k in range(1, 45)]
+    believed = [plain.plausible(0.0, t + k * dt, False, dt) for k in range(1, 45)]
+    assert not any(refused)                                   # 1.5 s: no collision either
+    assert not believed[0] and believed[1]                    # before: believed from the second frame
+    assert not pulled.plausible(0.0, t + 46 * dt, False, dt)  # the refusal that began pulled stays so
+    assert pulled.plausible(0.1, t + 47 * dt, True, dt)       # the wall seen moving again: believed
+    fast, t = cruising(0.5)                                   # faster than two frames can stop, without a pull:
+    assert not any(fast.plausible(0.0, t + k * dt, False, dt) for k in range(1, 10))
+    assert fast.plausible(0.0, t + 10 * dt, False, dt)        # the drive could have stopped by now
+
+    after_gap, t = cruising()                                 # 0.25 s blind, then a stand under a pull
+    assert not after_gap.plausible(0.0, t + 0.25, True, dt)
+    assert cruising()[0].plausible(0.0, t + 0.25, False, dt)  # without one: it may have braked meanwhile
+
+    def shaking():                                            # a car whose speed reads +-0.03 m/s of jitter
+        g = FrameGates(p)
+        for k in range(60):
+            g.measured(0.1 + 0.03 * (-1) ** k if k < 59 else 0.1, k * dt)
+        return g, 59 * dt
+
+    g, t = shaking()
+    assert g.plausible(0.04, t + dt, True, dt)                # its jitter, under a pull too: believed
+    g, t = shaking()
+    assert not g.plausible(0.0, t + dt, True, dt)             # but a stand under a pull is no jitter
+    g, t = shaking()
+    assert g.plausible(0.0, t + dt, False, dt)                # (without one it is: a pitching car)
+
+    braking, t = cruising()                                   # a brake at 1 m/s^2, seen frame by frame
+    for k in range(1, 4):
+        v = 0.1 - 1.0 * k * dt
+        assert braking.plausible(v, t + k * dt, True, dt)
+        braking.measured(v, t + k * dt)
+    assert braking.plausible(0.0, t + 4 * dt, True, dt)
+
+
 def test_after_a_gap_tracks_on_faint_blocks_the_encoder_copied_are_no_stand_but_on_texture_they_are(texture):
     """At CRF 38 the encoder copies the blocks of a wet wall under the LED's highlight, pixel for
     pixel, while it codes the rest of the frame anew: the frame is no copy, but tracks on those
