@@ -165,6 +165,7 @@ class FrameGates:
         else:
             self._dv = None
         self.v_ref, self.t_ref = v, t_s
+        self._refused_since = None    # a believed frame ends any refusal
 
     def plausible(self, v: float, t_s: float, pulled: bool = False, frame_s: float = 0.0) -> bool:
         """Could the crawler have gone from v_ref (at t_ref) to v by t_s? `pulled`: read on a

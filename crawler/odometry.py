@@ -352,7 +352,7 @@ class Odometer:
         jyv, jyu, jsv, jsu = self._dense_jac
         step, lat = jyv * dv + jyu * du, jsv * dv + jsu * du
         v = step / dt
-        if not self._gates.plausible(v, t_s):
+        if not self._gates.plausible(v, t_s, False, dt):
             return self._blind(t_s)
         continuous = self._unmeasured_since is None and not self._blind_restart
         self.distance += step
