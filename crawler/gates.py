@@ -10,7 +10,8 @@
   (texture that stays put in the image while the wall moves: a specular highlight, blocks the encoder
   copied) is refused, until it has said the same long enough to be a real stop (a collision). What
   counts as faster allows for the jitter the believed speeds show lately: a car that pitches reads
-  its pitch as a few pixels of speed a frame.
+  its pitch as a few pixels of speed a frame. Under shading that stays put (a keyframe tracked
+  flat-fielded) tracks read a stand whatever the crawler does: there a stand must be seen coming.
 - Copies: after a gap, a frame the video encoder copied from the last one (almost no pixel changed)
   is no news of the motion. A camera's own frames always differ (sensor noise), and a moving
   textured wall cannot be copied; a smooth wall under a fixed highlight can, and its copied blocks
