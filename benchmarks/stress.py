@@ -1,7 +1,7 @@
 """Stress suite for "never lose distance": hw_sim runs with one hard disturbance each, replayed by crawlerd.
 
     python benchmarks/stress.py [--out DIR] [--jobs N] [--cases a,b] [--markdown] [--set SECTION.KEY=VALUE]
-                                [--reseed N] [--wall skimage:brick|IMAGE] [--held-out | --probes | --lobes]
+                                [--reseed N] [--wall skimage:brick|IMAGE] [--held-out | --probes | --lobes | --stops]
 
 Each case renders once (cached in --out; the .csv keeps the true tilt, camera height, LED light, wet
 share and lost frames per frame) and is replayed with crawlerd's Daemon as `crawlerd --replay` would
@@ -129,6 +129,18 @@ LOBES = {
 }
 CASES.update({name: (fields, []) for name, fields in LOBES.items()})
 
+# stops (--stops): the lobes' wet stretches with a crawler that stops and goes (0.5 m/s^2) inside them:
+# under the highlight the tracks read a stand whether it stands or drives
+STOPGO = dict(profile="stopgo")
+STOPS = {
+    "stop-lobe-brick-0deg-0.1": _lobe(0, 0.1, "brick", 601, **STOPGO, stopgo_period_s=2.0, stopgo_dwell_s=0.6),
+    "stop-lobe-brick-24deg-0.2": _lobe(24, 0.2, "brick", 602, **STOPGO, stopgo_period_s=2.0, stopgo_dwell_s=0.6),
+    "stop-lobe-grass-40deg-0.1": _lobe(40, 0.1, "grass", 603, **STOPGO, stopgo_period_s=2.5, stopgo_dwell_s=1.0),
+    "stop-lobe-gravel-0deg-0.2": _lobe(0, 0.2, "gravel", 604, **STOPGO, stopgo_period_s=2.0, stopgo_dwell_s=1.0),
+    "stop-lobe-brick-0deg-0.1-long": _lobe(0, 0.1, "brick", 605, **STOPGO, stopgo_period_s=3.0, stopgo_dwell_s=1.5),
+}
+CASES.update({name: (fields, []) for name, fields in STOPS.items()})
+
 
 def replay(h264: Path, overrides: list[str], log: Path) -> dict:
     from crawler import settings
@@ -195,6 +207,8 @@ def main(argv=None):
                     help="the probe runs instead: stands, reversals and ramps inside gaps on photographed walls")
     ap.add_argument("--lobes", action="store_true",
                     help="the lobe runs instead: wet stretches under the LED's highlight, from a crawl to a walk")
+    ap.add_argument("--stops", action="store_true",
+                    help="the stop runs instead: a crawler that stops and goes inside the lobes' wet stretches")
     ap.add_argument("--wall", metavar="IMAGE",
                     help="every case on this photographed wall instead of its own texture: a grey image "
                          "file, or skimage:brick|gravel|grass (a held-out check)")
@@ -206,10 +220,13 @@ def main(argv=None):
         out = out / "probes"
     if args.lobes:
         out = out / "lobes"
+    if args.stops:
+        out = out / "stops"
 
     out.mkdir(parents=True, exist_ok=True)
     names = (args.cases.split(",") if args.cases else list(HELD_OUT) if args.held_out
-             else list(PROBES) if args.probes else list(LOBES) if args.lobes else MAIN)
+             else list(PROBES) if args.probes else list(LOBES) if args.lobes
+             else list(STOPS) if args.stops else MAIN)
     t0 = time.time()
     rows = []
     with ProcessPoolExecutor(args.jobs) as pool:
