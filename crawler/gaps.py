@@ -36,7 +36,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from .consensus import FadingMean
+from .consensus import FadingMean, median
 from .gapmodel import BridgeParams, Gap, model_var, settled_travel, stops, travel
 from .motionfit import ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured, slope as _slope
 
@@ -298,6 +298,7 @@ class GapBridge:
         self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var
         self._gap = None
 
+
 def _before_a_hole(h: list, min_s: float) -> list:
     """The window's samples a speed and a rate are read from. A frame measured across lost frames
     and lost again within min_s (caught between two gaps, at the edge of what the camera can see)
@@ -307,7 +308,7 @@ def _before_a_hole(h: list, min_s: float) -> list:
     ts = [t for t, _ in h]
     if len(ts) < 6:
         return h
-    frame = sorted(b - a for a, b in zip(ts, ts[1:]))[(len(ts) - 1) // 2]
+    frame = median([b - a for a, b in zip(ts, ts[1:])])
     k = max((i + 1 for i in range(len(ts) - 1) if ts[i + 1] - ts[i] > 1.5 * frame), default=0)
     return h[:k] if k >= 5 and ts[-1] - ts[k] < min_s - _TIME_EPS else h
 
