@@ -62,7 +62,7 @@ class Odometer:
         """Forget the keyframe and start counting from the given distance."""
         self.distance, self.lateral = distance, lateral
         self.frame, self.lost_frames = -1, 0
-        self._kf: Keyframe | None = None
+        self._kf = self._kf_last = None   # Keyframes: the one measured against; the last, while dense
         self._good_coarse = None   # (flat, quarter-size ROI of the last tracked frame), for the guess
         self._good_roi, self._good_at = None, (distance, lateral)   # ...and its distance, lateral
         self._prev_t = None
@@ -170,9 +170,9 @@ class Odometer:
         return self.camera.to_pixels(self.projection.to_image(wall))
 
     def _new_keyframe(self, img, t_s, owned: bool = False) -> bool:
-        if not owned:
-            img = img.copy()  # the frame buffer belongs to the camera or decoder
-        pts, seen, pull = keyframe_features(img, t_s, self._kf, self._motion_v, self.params, self._border)
+        img = img if owned else img.copy()    # the frame buffer belongs to the camera or decoder
+        pts, seen, pull = keyframe_features(img, t_s, self._kf or self._kf_last, self._motion_v, self.params,
+                                            self._border)
         if len(pts) < self.params.min_tracks:
             self._kf = None
             self._prev_pts = None
@@ -351,13 +351,13 @@ class Odometer:
         (du, dv), response, since_s = found
         jyv, jyu, jsv, jsu = self._dense_jac
         step, lat = jyv * dv + jyu * du, jsv * dv + jsu * du
-        v = step / dt
+        v = step / (t_s - since_s if since_s is not None and since_s < t_s else dt)   # a start: over its frames
         if not self._gates.plausible(v, t_s, False, dt):
             return self._blind(t_s)
         continuous = self._unmeasured_since is None and not self._blind_restart
-        self.distance += step
-        self.lateral += lat
-        self._kf, self._prev_pts = None, None     # features start afresh when texture returns
+        self.distance, self.lateral = self.distance + step, self.lateral + lat
+        # features start afresh when texture returns; the last keyframe still tests their pull (static_pull)
+        self._kf_last, self._kf, self._prev_pts = self._kf or self._kf_last, None, None
         self._velocity = v
         self._gates.measured(v, t_s)
         self._last_good_t = t_s
