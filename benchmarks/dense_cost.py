@@ -1,11 +1,12 @@
 """What one dense shift costs on the Pi 2 (a wall too smooth for features), in ARM instructions.
 
     python benchmarks/dense_cost.py                # the figures (runs the yardstick 6 times)
-    python benchmarks/dense_cost.py N MODE         # one run: N dense shifts; MODE full|image|plain
+    python benchmarks/dense_cost.py N MODE         # one run: N dense shifts; MODE full|image|plain|clipped
 
 N frames of a faint wall (3 % contrast, 8 px a frame) through the odometer's DenseShift on a
 240 x 240 window at 24 deg: `full` as crawlerd runs it (on the wall grid, refined), `image` refined
-on the image itself (no wall grid), `plain` OpenCV's shift of the image as it was before. The cost
+on the image itself (no wall grid), `plain` OpenCV's shift of the image as it was before, `clipped`
+as `full` under the LED's highlight clipped at its middle, its light swinging by 10 %. The cost
 is the slope between a short and a long run, so start-up cancels. It is paid only on frames
 without features (docs/odometry.md, "Weak texture"); a tracked frame pays none of it. Not a test:
 it prints figures (docs/performance.md).
@@ -41,8 +42,10 @@ def shifts(n: int, mode: str):
     rng = np.random.default_rng(1)
     wall = cv2.GaussianBlur(rng.normal(0, 1, (800, 240)).astype(np.float32), (0, 0), 6.0)
     wall = 120 + 0.03 * 64 * wall / wall.std()
-    frames = [np.clip(wall[8 * i:8 * i + 240] + rng.normal(0, 0.6, (240, 240)), 0, 255).astype(np.uint8)
-              for i in range(60)]
+    yy, xx = np.mgrid[0:240, 0:240]
+    lobe = 200.0 * np.exp(-((yy - 120) ** 2 + (xx - 120) ** 2) / (2 * 40.0 ** 2)) if mode == "clipped" else 0.0
+    frames = [np.clip((wall[8 * i:8 * i + 240] + lobe) * (1 + (0.1 * math.sin(i / 6) if mode == "clipped" else 0))
+                      + rng.normal(0, 0.6, (240, 240)), 0, 255).astype(np.uint8) for i in range(60)]
     found = sum(dense.shift(frames[i % 60], i / 30) is not None for i in range(n))
     print("shifts", found, "of", n)
 
@@ -51,7 +54,7 @@ def report():
     from arm_yardstick import pi2_fps, run, slope
 
     script = "benchmarks/dense_cost.py"
-    for mode in ("plain", "image", "full"):
+    for mode in ("plain", "image", "full", "clipped"):
         per = slope(run([script, "30", mode]), run([script, "90", mode]), 60)
         print(f"{mode:5s}: {per / 1e6:.2f} M ARM instructions per dense shift ({1000 / pi2_fps(per):.1f} ms on a Pi 2)")
 

@@ -14,6 +14,7 @@ mean has seen enough frames.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -40,6 +41,12 @@ class DenseParams:
     agree: float = 0.2                # ...each its neighbours' mean within this share (or a pixel)
     refine: int = 1                   # passes of `refine` on OpenCV's shift (0: OpenCV's as it is)
     stop_px: float = 2.0              # a frozen frame after a believed shift this small (px a frame): a stand
+    slow_px: float = 6.0              # a first believed motion this slow (px a frame) must add up: across
+                                      # its frames at once the shift must be their sum (stop_px or agree)
+    clipped_dn: float = 250.0         # a pixel this bright (at that level) is clipped: it shows no wall
+    clipped_margin: int = 1           # ...nor its neighbours (pixels at that level), half-clipped
+    clipped_fade: float = 2.0         # the wall around is faded in over this many pixels (Gaussian sigma)
+    max_clipped: float = 0.6          # a region clipped more than this share: too little wall to correlate
 
 
 class DenseShift:
@@ -57,6 +64,7 @@ class DenseShift:
 
     def reset(self):
         self._mean = None             # the running mean of the recent frames: what stays put
+        self._clip = None             # ...and of where they were clipped (None: nowhere lately)
         self._prev = None             # the last flat-fielded frame
         self._prev_small = None       # ...and the last frame as it came, at that level
         self._frames = 0
@@ -64,6 +72,7 @@ class DenseShift:
         self._last_dv = None          # the last two shifts handed out, once confirmed
         self._prev_t = None           # the last frame's time
         self._frozen = False          # the last frame was the encoder's copy of the one before
+        self._recent: deque = deque(maxlen=self.p.confirm + 1)   # (time, flat-fielded frame) of the last few
 
     def resample(self, maps):
         """Resample the frames with these maps (dense_conversion's) from now on; what was seen on the
@@ -77,6 +86,7 @@ class DenseShift:
         up, unsure or waiting for confirmation."""
         found, since = self._frame_shift(roi), self._prev_t
         self._prev_t = t_s
+        self._recent.append((t_s, self._prev))
         if found is None and self._frozen and self._last_dv is not None and abs(self._last_dv[-1]) <= self.p.stop_px:
             # seen slowing to a crawl, then frames the encoder left as they were: a faint wall that
             # moved would have changed them as it did a moment ago, so the crawler stands
@@ -96,15 +106,34 @@ class DenseShift:
         # correlate. Only what stays put in the image does (the encoder's copied blocks, what is
         # left of a highlight), while the crawler may drive on under it
         still = sum(map(abs, recent)) < self.p.stop_px * len(recent)
-        if len(recent) < self.p.confirm or not self._steady(recent) or still:
-            self._pending = self._pending[-(self.p.confirm - 1):]
-            return None
         du = sum(s[0] for s, _, _ in self._pending)
         dv = sum(s[1] for s, _, _ in self._pending)
-        response = min(r for _, r, _ in self._pending)
         since = self._pending[0][2]
+        if len(recent) < self.p.confirm or not self._steady(recent) or still or not self._adds_up(since, dv):
+            self._pending = self._pending[-(self.p.confirm - 1):]
+            return None
+        response = min(r for _, r, _ in self._pending)
         self._pending, self._last_dv = [], recent[-2:]
         return (du, dv), response, since
+
+    def _adds_up(self, since: float, dv: float) -> bool:
+        """Does the wall's shift from the frame at `since` to this one, read at once, make the sum dv
+        of the shifts read frame by frame? What stays put in the image (what is left of a clipped
+        highlight, its glare breathing with the car's pose) reads next to no shift frame by frame,
+        its noise a pixel or two each way; three of those in a row, just over stop_px, were taken
+        for a crawler setting off at 0.2 m/s where the wall moved 30 px a frame (a lobe run: -36 %).
+        Across three frames it still reads next to nothing, where a wall that moves reads three
+        times the shift. Only checked on a start under slow_px a frame: faster, what stays put does
+        not look like it."""
+        n = len(self._pending)
+        if not n or abs(dv) >= self.p.slow_px * n:
+            return True
+        then = next((f for t, f in self._recent if abs(t - since) < 1e-6), None)
+        now = self._recent[-1][1] if self._recent else None
+        if then is None or now is None:
+            return True
+        (du1, dv1), response = self._correlate(then, now)
+        return abs(dv1 * self._scale - dv) <= max(self.p.stop_px, self.p.agree * abs(dv))
 
     def _steady(self, dvs) -> bool:
         """Do these frame-to-frame shifts go on as a crawler's drive does: each the mean of its
@@ -125,26 +154,80 @@ class DenseShift:
         small = small8.astype(np.float32)
         if self.maps is not None:
             small = cv2.remap(small, self.maps[0], self.maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        # a plain average at first: the first frame must not linger in it
+        a = 1.0 if self._mean is None else max(self.p.memory, 1.0 / (self._frames + 1))
         if self._mean is None:
             self._mean = small.copy()
-        else:                         # a plain average at first: the first frame must not linger in it
-            a = max(self.p.memory, 1.0 / (self._frames + 1))
+        else:
             cv2.addWeighted(self._mean, 1.0 - a, small, a, 0.0, dst=self._mean)
+        seen = self._clipped(small >= self.p.clipped_dn, a)
         flat = cv2.GaussianBlur(small / (self._mean + 1.0), (0, 0), self.p.blur)
-        flat -= float(flat.mean())
-        prev, self._prev = self._prev, flat
+        if seen is None:
+            flat -= float(flat.mean())
+        prev, self._prev = self._prev, (flat, seen)
         self._frames += 1
         if prev is None or self._frames <= self.p.warmup or frozen:
             return None
-        (du, dv), response = coarse_shift(prev, flat, self._window, 1.0)
+        (du, dv), response = self._correlate(prev, self._prev)
         if response < self.p.min_response:
             return None
-        if self.p.refine:
-            du, dv = refine(prev, flat, (du, dv), self.p.refine)
         return (du * self._scale, dv * self._scale), float(response)
 
+    def _clipped(self, clipped: np.ndarray, a: float):
+        """Where a frame the running mean still holds (weight a for this one) was clipped: its mean
+        there is no wall's (None: nowhere, the running mean has forgotten any clip)."""
+        if self._clip is None and not clipped.any():
+            return None
+        clip = clipped.astype(np.float32)
+        if self._clip is None:
+            self._clip = clip * a
+        else:
+            cv2.addWeighted(self._clip, 1.0 - a, clip, a, 0.0, dst=self._clip)
+        seen = self._clip > 0.01
+        if not seen.any():
+            self._clip = None
+            return None
+        return seen
 
-def refine(prev: np.ndarray, cur: np.ndarray, guess, passes: int = 1) -> tuple[float, float]:
+    def _correlate(self, then, now):
+        """((du, dv) at this level, response) from one flat-fielded frame to another (response 0:
+        too little of them is not clipped)."""
+        pair = unclipped(then, now, self.p)
+        if pair is None:
+            return (0.0, 0.0), 0.0
+        a, b, keep = pair
+        if keep is None:
+            (du, dv), response = coarse_shift(a, b, self._window, 1.0)
+        else:
+            (du, dv), response = coarse_shift(a * keep, b * keep, self._window, 1.0)
+        if response >= self.p.min_response and self.p.refine:
+            du, dv = refine(a, b, (du, dv), self.p.refine, keep)
+        return (du, dv), response
+
+
+def unclipped(a, b, p: DenseParams):
+    """Two flat-fielded frames, each (frame, clipped pixels), ready to correlate: (a, b, keep), a
+    and b zero-mean over the pixels clipped in neither, keep (None: nothing clipped) fading out over
+    those clipped in either; None: too little is left. A saturated highlight is flat in every frame:
+    left in, its disc stands out of the textured wall around it by its own level and, staying put
+    while the wall moves, pulls the correlation to next to no shift (a wet brick run: 1-2 px a frame
+    read where the wall moved 30). One mask for both frames: a disc that breathes with the car's
+    pose must not leave an edge of its own either."""
+    (fa, ca), (fb, cb) = a, b
+    if ca is None and cb is None:         # (each then zero-mean already)
+        return fa, fb, None
+    clipped = (cb if ca is None else ca if cb is None else ca | cb).astype(np.uint8)
+    if p.clipped_margin:
+        k = 2 * p.clipped_margin + 1
+        clipped = cv2.dilate(clipped, np.ones((k, k), np.uint8))
+    keep = clipped == 0
+    if np.count_nonzero(keep) < (1.0 - p.max_clipped) * keep.size:
+        return None
+    fade = cv2.GaussianBlur(keep.astype(np.float32), (0, 0), p.clipped_fade)
+    return fa - float(fa[keep].mean()), fb - float(fb[keep].mean()), fade
+
+
+def refine(prev: np.ndarray, cur: np.ndarray, guess, passes: int = 1, keep=None) -> tuple[float, float]:
     """The shift prev -> cur (cur(x) = prev(x - d)) to a hundredth of a pixel, from a guess within one.
 
     OpenCV's phase correlation reads a shift of a few pixels several % off, and the same way at every
@@ -155,15 +238,22 @@ def refine(prev: np.ndarray, cur: np.ndarray, guess, passes: int = 1) -> tuple[f
     signal); and the peak is found on the correlation as a continuous function of the shift, by
     Newton's method from the guess. For a pure shift that correlation is symmetric about the true
     shift, so its peak is the shift itself: on exactly shifted textures it reads within 0.3 %
-    (tests/test_dense.py). The wall's motion is such a shift on wall_grid's grid, not in the image."""
+    (tests/test_dense.py). The wall's motion is such a shift on wall_grid's grid, not in the image.
+    `keep` (`unclipped`'s): a mask that stays put in the image, as the window would; each frame is
+    weighted by what is kept in both at the same wall points, the mask moved with the guess too."""
     h, w = prev.shape
     ky, kx, half, win_y, win_x = _spectrum_axes(h, w)
     dx, dy = float(guess[0]), float(guess[1])
-    fa = np.conj(_half_white(np.fft.rfft2(prev * np.outer(win_y, win_x))))
+    fa = None if keep is not None else np.conj(_half_white(np.fft.rfft2(prev * np.outer(win_y, win_x))))
     for _ in range(passes):
         if abs(dx) > w / 2 or abs(dy) > h / 2:
             break
-        r = _half_white(np.fft.rfft2(cur * np.outer(_hann(h, dy), _hann(w, dx)))) * fa
+        if keep is None:
+            r = _half_white(np.fft.rfft2(cur * np.outer(_hann(h, dy), _hann(w, dx)))) * fa
+        else:                     # what is kept in both, at the same wall points in each
+            wp = np.outer(win_y, win_x) * keep * _moved(keep, -dx, -dy)
+            wc = np.outer(_hann(h, dy), _hann(w, dx)) * keep * _moved(keep, dx, dy)
+            r = _half_white(np.fft.rfft2(_centred(cur, wc))) * np.conj(_half_white(np.fft.rfft2(_centred(prev, wp))))
         for _ in range(2):
             dx, dy = _newton(r, ky, kx, half, dx, dy)
     if not (abs(dx - guess[0]) <= 1.0 and abs(dy - guess[1]) <= 1.0):
@@ -181,6 +271,17 @@ def _spectrum_axes(h: int, w: int):
     if w % 2 == 0:
         half[-1] = 1.0
     return 2 * np.pi * np.fft.fftfreq(h), 2 * np.pi * np.fft.rfftfreq(w), half, _hann(h, 0.0), _hann(w, 0.0)
+
+
+def _moved(img: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """img moved by (dx, dy) pixels, zero where nothing moved in."""
+    m = np.float32([[1, 0, dx], [0, 1, dy]])
+    return cv2.warpAffine(img, m, (img.shape[1], img.shape[0]), flags=cv2.INTER_LINEAR, borderValue=0.0)
+
+
+def _centred(img: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """img weighted, less its weighted mean: a level left in would correlate with the weight."""
+    return (img - float((img * weight).sum() / max(float(weight.sum()), 1e-9))) * weight
 
 
 def _half_white(f: np.ndarray) -> np.ndarray:
