@@ -56,7 +56,7 @@ def report():
     script = "benchmarks/dense_cost.py"
     for mode in ("plain", "image", "full", "clipped"):
         per = slope(run([script, "30", mode]), run([script, "90", mode]), 60)
-        print(f"{mode:5s}: {per / 1e6:.2f} M ARM instructions per dense shift ({1000 / pi2_fps(per):.1f} ms on a Pi 2)")
+        print(f"{mode:7s}: {per / 1e6:.2f} M ARM instructions per dense shift ({1000 / pi2_fps(per):.1f} ms on a Pi 2)")
 
 
 if __name__ == "__main__":

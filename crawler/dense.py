@@ -14,7 +14,6 @@ mean has seen enough frames.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -47,6 +46,7 @@ class DenseParams:
     clipped_margin: int = 1           # ...nor its neighbours (pixels at that level), half-clipped
     clipped_fade: float = 2.0         # the wall around is faded in over this many pixels (Gaussian sigma)
     max_clipped: float = 0.6          # a region clipped more than this share: too little wall to correlate
+    clip_forgotten: float = 0.01      # a clip the running mean holds less than this of: gone (~22 frames)
 
 
 class DenseShift:
@@ -65,14 +65,13 @@ class DenseShift:
     def reset(self):
         self._mean = None             # the running mean of the recent frames: what stays put
         self._clip = None             # ...and of where they were clipped (None: nowhere lately)
-        self._prev = None             # the last flat-fielded frame
+        self._prev = None             # the last frame flat-fielded, and where it is clipped (None: nowhere)
         self._prev_small = None       # ...and the last frame as it came, at that level
         self._frames = 0
-        self._pending: list = []      # (shift, response, start time) found, not yet confirmed by the next
+        self._pending: list = []      # (shift, response, start time, start frame) found, not yet confirmed
         self._last_dv = None          # the last two shifts handed out, once confirmed
         self._prev_t = None           # the last frame's time
         self._frozen = False          # the last frame was the encoder's copy of the one before
-        self._recent: deque = deque(maxlen=self.p.confirm + 1)   # (time, flat-fielded frame) of the last few
 
     def resample(self, maps):
         """Resample the frames with these maps (dense_conversion's) from now on; what was seen on the
@@ -84,9 +83,9 @@ class DenseShift:
         """((du, dv), response, since_s): the shift since the last one returned (the sum of the
         confirmed frame-to-frame shifts, from the frame taken at since_s), or None while warming
         up, unsure or waiting for confirmation."""
-        found, since = self._frame_shift(roi), self._prev_t
+        before, since = self._prev, self._prev_t
+        found = self._frame_shift(roi)
         self._prev_t = t_s
-        self._recent.append((t_s, self._prev))
         if found is None and self._frozen and self._last_dv is not None and abs(self._last_dv[-1]) <= self.p.stop_px:
             # seen slowing to a crawl, then frames the encoder left as they were: a faint wall that
             # moved would have changed them as it did a moment ago, so the crawler stands
@@ -99,41 +98,38 @@ class DenseShift:
             self._last_dv = [self._last_dv[-1], found[0][1]]     # confirmed before, and it goes on
             return (*found, since)
         self._last_dv = None
-        self._pending.append((*found, since))
-        recent = [dv for (_, dv), _, _ in self._pending[-self.p.confirm:]]
+        self._pending.append((*found, since, before))
+        recent = [shift[1] for shift, *_ in self._pending[-self.p.confirm:]]
         # next to no motion with no brake seen before it is not believed either: a wall that stands
         # becomes the running mean, and a camera's frames of it flat-field to noise that does not
         # correlate. Only what stays put in the image does (the encoder's copied blocks, what is
         # left of a highlight), while the crawler may drive on under it
         still = sum(map(abs, recent)) < self.p.stop_px * len(recent)
-        du = sum(s[0] for s, _, _ in self._pending)
-        dv = sum(s[1] for s, _, _ in self._pending)
-        since = self._pending[0][2]
-        if len(recent) < self.p.confirm or not self._steady(recent) or still or not self._adds_up(since, dv):
+        du = sum(shift[0] for shift, *_ in self._pending)
+        dv = sum(shift[1] for shift, *_ in self._pending)
+        if len(recent) < self.p.confirm or not self._steady(recent) or still or not self._adds_up(dv):
             self._pending = self._pending[-(self.p.confirm - 1):]
             return None
-        response = min(r for _, r, _ in self._pending)
+        response = min(r for _, r, *_ in self._pending)
+        start = self._pending[0][2]
         self._pending, self._last_dv = [], recent[-2:]
-        return (du, dv), response, since
+        return (du, dv), response, start
 
-    def _adds_up(self, since: float, dv: float) -> bool:
-        """Does the wall's shift from the frame at `since` to this one, read at once, make the sum dv
-        of the shifts read frame by frame? What stays put in the image (what is left of a clipped
+    def _adds_up(self, dv: float) -> bool:
+        """Does the wall's shift from the pending shifts' first frame to this one, read at once, make
+        their sum dv? What stays put in the image (what is left of a clipped
         highlight, its glare breathing with the car's pose) reads next to no shift frame by frame,
         its noise a pixel or two each way; three of those in a row, just over stop_px, were taken
         for a crawler setting off at 0.2 m/s where the wall moved 30 px a frame (a lobe run: -36 %).
         Across three frames it still reads next to nothing, where a wall that moves reads three
         times the shift. Only checked on a start under slow_px a frame: faster, what stays put does
         not look like it."""
-        n = len(self._pending)
-        if not n or abs(dv) >= self.p.slow_px * n:
+        if abs(dv) >= self.p.slow_px * len(self._pending):
             return True
-        then = next((f for t, f in self._recent if abs(t - since) < 1e-6), None)
-        now = self._recent[-1][1] if self._recent else None
-        if then is None or now is None:
-            return True
-        (du1, dv1), response = self._correlate(then, now)
-        return abs(dv1 * self._scale - dv) <= max(self.p.stop_px, self.p.agree * abs(dv))
+        # (its peak however weak: one below min_response that agrees is no chance, on a faint wall
+        # across three frames it can be the wall's; requiring min_response read a stop run +7 -> +13 %)
+        (_, dv_at_once), _ = self._correlate(self._pending[0][3], self._prev)
+        return abs(dv_at_once * self._scale - dv) <= max(self.p.stop_px, self.p.agree * abs(dv))
 
     def _steady(self, dvs) -> bool:
         """Do these frame-to-frame shifts go on as a crawler's drive does: each the mean of its
@@ -183,7 +179,7 @@ class DenseShift:
             self._clip = clip * a
         else:
             cv2.addWeighted(self._clip, 1.0 - a, clip, a, 0.0, dst=self._clip)
-        seen = self._clip > 0.01
+        seen = self._clip >= self.p.clip_forgotten
         if not seen.any():
             self._clip = None
             return None
@@ -207,8 +203,9 @@ class DenseShift:
 
 def unclipped(a, b, p: DenseParams):
     """Two flat-fielded frames, each (frame, clipped pixels), ready to correlate: (a, b, keep), a
-    and b zero-mean over the pixels clipped in neither, keep (None: nothing clipped) fading out over
-    those clipped in either; None: too little is left. A saturated highlight is flat in every frame:
+    and b zero-mean over the pixels clipped in neither, keep (None: nothing clipped) the kept pixels
+    blurred, which weighs those clipped in either down (at the disc's edge a clipped pixel keeps up to
+    a quarter of its weight: zeroing them there read worse); None: too little is left. A saturated highlight is flat in every frame:
     left in, its disc stands out of the textured wall around it by its own level and, staying put
     while the wall moves, pulls the correlation to next to no shift (a wet brick run: 1-2 px a frame
     read where the wall moved 30). One mask for both frames: a disc that breathes with the car's

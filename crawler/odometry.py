@@ -182,8 +182,8 @@ class Odometer:
         good = np.all(np.isfinite(wall), axis=1)
         pts, px, wall = pts[good], px[good], wall[good]
         predict = motion_model(px, wall, self._pixels, self.m_per_px)
-        self._kf = Keyframe(img, pts, wall, self.camera.row_time(px[:, 1]), t_s, self.distance,
-                            self.lateral, predict, seen, pull)
+        self._kf, self._kf_last = Keyframe(img, pts, wall, self.camera.row_time(px[:, 1]), t_s, self.distance,
+                                           self.lateral, predict, seen, pull), None
         self.pose.keyframe(self._kf, px, t_s)
         self._prev_pts = self._kf.pts
         self._prev_origin = (self._kf, slice(None))
@@ -351,17 +351,16 @@ class Odometer:
         (du, dv), response, since_s = found
         jyv, jyu, jsv, jsu = self._dense_jac
         step, lat = jyv * dv + jyu * du, jsv * dv + jsu * du
-        v = step / (t_s - since_s if since_s is not None and since_s < t_s else dt)   # a start: over its frames
+        frames = (t_s - since_s) / dt if since_s is not None and since_s < t_s else 1.0   # a start: over its frames
+        v = step / (frames * dt)
         if not self._gates.plausible(v, t_s, False, dt):
             return self._blind(t_s)
         continuous = self._unmeasured_since is None and not self._blind_restart
         self.distance, self.lateral = self.distance + step, self.lateral + lat
         # features start afresh when texture returns; the last keyframe still tests their pull (static_pull)
         self._kf_last, self._kf, self._prev_pts = self._kf or self._kf_last, None, None
-        self._velocity = v
+        self._velocity, self._last_good_t, self._motion_v = v, t_s, dv / frames
         self._gates.measured(v, t_s)
-        self._last_good_t = t_s
-        self._motion_v = dv
         self._unmeasured_since, self._blind_restart, self._after_dense = None, False, True
         self.lost_frames = 0
         self._speed.update(t_s, self.distance)

@@ -467,11 +467,11 @@ def test_across_a_gap_a_match_on_the_leds_highlight_is_not_the_wall_but_one_on_t
 
 
 def faint_then_wet_frames(texture, px: float = 4.0):
-    """A wet wall (35 % of the contrast) under the LED's fixed highlight, then a stretch too faint for
-    features (3 %: the dense shift), then the wet wall again, moving px a frame: (frames, true m)."""
+    """A wet wall (25 % of the contrast) under the LED's fixed highlight, then a stretch too faint for
+    features (1.5 %: the dense shift), then the wet wall again, moving px a frame: (frames, true m)."""
     yy, xx = np.mgrid[0:480, 0:640]
-    lobe = 140.0 * np.exp(-((xx - 320.0) ** 2 + (yy - 250.0) ** 2) / (2 * 60.0 ** 2))
-    wet, faint = 100 + 0.35 * (texture.astype(np.float32) - 128), faint_wall(texture) - 20
+    lobe = 120.0 * np.exp(-((xx - 320.0) ** 2 + (yy - 250.0) ** 2) / (2 * 60.0 ** 2))
+    wet, faint = 100 + 0.25 * (texture.astype(np.float32) - 128), 100 + 0.5 * (faint_wall(texture) - 120)
     rng = np.random.default_rng(1)
     frames = []
     for i in range(75):
@@ -484,21 +484,21 @@ def faint_then_wet_frames(texture, px: float = 4.0):
 
 def test_after_the_dense_shift_the_first_keyframe_is_tested_for_the_pull_of_what_stays_put(texture):
     # the dense shift drops the keyframe (features start afresh when texture returns); the first new
-    # one was then never tested against a picture of the wall elsewhere (flow.static_pull) and was
-    # tracked as it came: on a lobe run on a wet brick wall its features sat on the highlight, read
-    # a stand, and the wet stretch before them was settled as one (-9 %)
+    # one was then never tested against a picture of the wall elsewhere (flow.static_pull), was
+    # tracked as it came, and the highlight pulled its steps short: here 0.75 %; on a lobe run on a
+    # wet brick wall its features sat on the highlight, read a stand, and the wet stretch before
+    # them was settled as one (-9 %)
     frames, _ = faint_then_wet_frames(texture)
     odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
-    est, pulls = [], []
+    est, flat = [], []
     for i, img in enumerate(frames):
         est.append(odo.update(img, i / 30))
-        pulls.append(None if odo.keyframe is None else odo.keyframe.pull)
-    assert sum(e.tracking and e.inliers == 0 for e in est[20:45]) > 10     # the dense shift's stretch
+        flat.append(odo.keyframe is not None and odo.keyframe.flat)
+    assert flat[19] and sum(e.tracking and e.inliers == 0 for e in est[20:45]) > 10   # pulled; then dense
     back = next(i for i in range(45, 75) if est[i].tracking and est[i].inliers > 0)
-    assert pulls[back] is not None
-    assert all(e.tracking for e in est[back:])
-    steps = np.diff([e.distance_m for e in est[back:]]) / M_PER_PX
-    assert abs(steps.mean() - 4.0) < 0.01 * 4.0
+    assert flat[back] and all(e.tracking for e in est[back:])
+    steps = np.diff([e.distance_m for e in est[back:back + 10]]) / M_PER_PX
+    assert abs(steps.mean() - 4.0) < 0.003 * 4.0     # 3.970 when it was tracked as it came
 
 
 def test_a_dense_start_hands_on_the_speed_of_its_frames_not_their_sum_in_one(texture):
