@@ -117,13 +117,12 @@ class DenseShift:
 
     def _adds_up(self, dv: float) -> bool:
         """Does the wall's shift from the pending shifts' first frame to this one, read at once, make
-        their sum dv? What stays put in the image (what is left of a clipped
-        highlight, its glare breathing with the car's pose) reads next to no shift frame by frame,
-        its noise a pixel or two each way; three of those in a row, just over stop_px, were taken
-        for a crawler setting off at 0.2 m/s where the wall moved 30 px a frame (a lobe run: -36 %).
-        Across three frames it still reads next to nothing, where a wall that moves reads three
-        times the shift. Only checked on a start under slow_px a frame: faster, what stays put does
-        not look like it."""
+        their sum dv? What stays put in the image (what is left of a clipped highlight, its glare
+        breathing with the car's pose) reads next to no shift frame by frame, its noise a pixel or
+        two each way; three of those in a row, just over stop_px, were taken for a crawler setting
+        off at 0.2 m/s where the wall moved 30 px a frame (a lobe run: -36 %). Across three frames
+        it still reads next to nothing, where a wall that moves reads three times the shift. Only
+        checked on a start under slow_px a frame: faster, what stays put does not look like it."""
         if abs(dv) >= self.p.slow_px * len(self._pending):
             return True
         # (its peak however weak: one below min_response that agrees is no chance, on a faint wall
@@ -204,12 +203,12 @@ class DenseShift:
 def unclipped(a, b, p: DenseParams):
     """Two flat-fielded frames, each (frame, clipped pixels), ready to correlate: (a, b, keep), a
     and b zero-mean over the pixels clipped in neither, keep (None: nothing clipped) the kept pixels
-    blurred, which weighs those clipped in either down (at the disc's edge a clipped pixel keeps up to
-    a quarter of its weight: zeroing them there read worse); None: too little is left. A saturated highlight is flat in every frame:
-    left in, its disc stands out of the textured wall around it by its own level and, staying put
-    while the wall moves, pulls the correlation to next to no shift (a wet brick run: 1-2 px a frame
-    read where the wall moved 30). One mask for both frames: a disc that breathes with the car's
-    pose must not leave an edge of its own either."""
+    blurred, which weighs those clipped in either down (at the disc's edge a clipped pixel keeps up
+    to a quarter of its weight: zeroing them there read worse); None: too little is left. A
+    saturated highlight is flat in every frame: left in, its disc stands out of the textured wall
+    around it by its own level and, staying put while the wall moves, pulls the correlation to next
+    to no shift (a wet brick run: 1-2 px a frame read where the wall moved 30). One mask for both
+    frames: a disc that breathes with the car's pose must not leave an edge of its own either."""
     (fa, ca), (fb, cb) = a, b
     if ca is None and cb is None:         # (each then zero-mean already)
         return fa, fb, None
