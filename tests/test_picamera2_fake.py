@@ -183,16 +183,19 @@ def test_pacing_is_real_time():
     cam.start()
     cam.capture_request(wait=1.0).release()
     t0 = time.perf_counter()
-    ts = []
+    ts, ages = [], []
     for _ in range(10):
         r = cam.capture_request(wait=1.0)
         ts.append(r.get_metadata()["SensorTimestamp"])
+        ages.append(time.monotonic_ns() - ts[-1])
         r.release()
     dt = time.perf_counter() - t0
     assert 0.08 <= dt <= 0.2, dt
     assert np.all(np.abs(np.diff(ts) - 10_000_000) < 10_000)         # consecutive frames, none skipped
-    # monotonic ns: a frame is returned one readout (480 lines of 18.9 us) after its timestamp
-    assert 9_000_000 <= time.monotonic_ns() - ts[-1] < 20_000_000
+    # monotonic ns: a frame is returned one readout (480 lines of 18.9 us) after its timestamp, never
+    # sooner, and the quickest return shows it (a busy machine only adds to an age: one measured after
+    # the loop once read 26.5 ms under load)
+    assert min(ages) >= 9_000_000 and min(ages) < 20_000_000, ages
     assert abs(world.clock() - time.monotonic_ns()) < 1_000_000         # world time is wall time
     assert world.frames_delivered == 11
     cam.close()
