@@ -68,9 +68,11 @@ class DenseShift:
         self._prev = None             # the last frame flat-fielded, and where it is clipped (None: nowhere)
         self._prev_small = None       # ...and the last frame as it came, at that level
         self._frames = 0
-        self._pending: list = []      # (shift, response, start time, start frame) found, not yet confirmed
+        self._pending: list = []      # (shift, response, start time, start frame, frame periods) found,
+                                      # not yet confirmed
         self._last_dv = None          # the last two shifts handed out, once confirmed
         self._prev_t = None           # the last frame's time
+        self._period = None           # the shortest interval between frames seen: the camera's frame period
         self._frozen = False          # the last frame was the encoder's copy of the one before
 
     def resample(self, maps):
@@ -86,6 +88,7 @@ class DenseShift:
         before, since = self._prev, self._prev_t
         found = self._frame_shift(roi)
         self._prev_t = t_s
+        periods = self._periods(t_s, since)
         if found is None and self._frozen and self._last_dv is not None and abs(self._last_dv[-1]) <= self.p.stop_px:
             # seen slowing to a crawl, then frames the encoder left as they were: a faint wall that
             # moved would have changed them as it did a moment ago, so the crawler stands
@@ -94,12 +97,13 @@ class DenseShift:
         if found is None:
             self._pending, self._last_dv = [], None
             return None
-        if self._last_dv is not None and self._steady([*self._last_dv, found[0][1]]):
-            self._last_dv = [self._last_dv[-1], found[0][1]]     # confirmed before, and it goes on
+        per_frame = found[0][1] / periods     # frames that never came: the shift spans them all
+        if self._last_dv is not None and self._steady([*self._last_dv, per_frame]):
+            self._last_dv = [self._last_dv[-1], per_frame]      # confirmed before, and it goes on
             return (*found, since)
         self._last_dv = None
-        self._pending.append((*found, since, before))
-        recent = [shift[1] for shift, *_ in self._pending[-self.p.confirm:]]
+        self._pending.append((*found, since, before, periods))
+        recent = [shift[1] / k for shift, _, _, _, k in self._pending[-self.p.confirm:]]
         # next to no motion with no brake seen before it is not believed either: a wall that stands
         # becomes the running mean, and a camera's frames of it flat-field to noise that does not
         # correlate. Only what stays put in the image does (the encoder's copied blocks, what is
@@ -123,12 +127,23 @@ class DenseShift:
         off at 0.2 m/s where the wall moved 30 px a frame (a lobe run: -36 %). Across three frames
         it still reads next to nothing, where a wall that moves reads three times the shift. Only
         checked on a start under slow_px a frame: faster, what stays put does not look like it."""
-        if abs(dv) >= self.p.slow_px * len(self._pending):
+        if abs(dv) >= self.p.slow_px * sum(k for *_, k in self._pending):
             return True
         # (its peak however weak: one below min_response that agrees is no chance, on a faint wall
         # across three frames it can be the wall's; requiring min_response read a stop run +7 -> +13 %)
         (_, dv_at_once), _ = self._correlate(self._pending[0][3], self._prev)
         return abs(dv_at_once * self._scale - dv) <= max(self.p.stop_px, self.p.agree * abs(dv))
+
+    def _periods(self, t_s: float, since) -> int:
+        """How many frame periods the interval since the last frame spans (1 but across frames that
+        never came: a camera's drops when the loop is late, a recording's gaps). The shifts are
+        judged a frame period at a time: counted per frame received, one drop in three left a faint
+        wall unmeasured, as each shift across a drop broke the steadiness its neighbours showed."""
+        if since is None or t_s <= since:
+            return 1
+        dt = t_s - since
+        self._period = dt if self._period is None else min(self._period, dt)
+        return max(1, round(dt / self._period))
 
     def _steady(self, dvs) -> bool:
         """Do these frame-to-frame shifts go on as a crawler's drive does: each the mean of its
