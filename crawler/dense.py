@@ -72,7 +72,7 @@ class DenseShift:
                                       # not yet confirmed
         self._last_dv = None          # the last two shifts handed out, once confirmed
         self._prev_t = None           # the last frame's time
-        self._period = None           # the shortest interval between frames seen: the camera's frame period
+        self._intervals = None        # the last intervals between frames (a list, made when first needed)
         self._frozen = False          # the last frame was the encoder's copy of the one before
 
     def resample(self, maps):
@@ -138,12 +138,17 @@ class DenseShift:
         """How many frame periods the interval since the last frame spans (1 but across frames that
         never came: a camera's drops when the loop is late, a recording's gaps). The shifts are
         judged a frame period at a time: counted per frame received, one drop in three left a faint
-        wall unmeasured, as each shift across a drop broke the steadiness its neighbours showed."""
+        wall unmeasured, as each shift across a drop broke the steadiness its neighbours showed.
+        Drops only lengthen intervals, so the period is a short one of the recent ones."""
         if since is None or t_s <= since:
             return 1
         dt = t_s - since
-        self._period = dt if self._period is None else min(self._period, dt)
-        return max(1, round(dt / self._period))
+        if self._intervals is None:
+            self._intervals = []
+        self._intervals = (self._intervals + [dt])[-9:]
+        # the frame period: the second shortest of the last nine (one odd timestamp is no period)
+        period = sorted(self._intervals)[min(1, len(self._intervals) - 1)]
+        return max(1, round(dt / period))
 
     def _steady(self, dvs) -> bool:
         """Do these frame-to-frame shifts go on as a crawler's drive does: each the mean of its

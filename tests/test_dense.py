@@ -213,3 +213,16 @@ def test_frames_that_never_came_do_not_stop_the_dense_shift(every):
             (_, dv), _, since = found
             moved, covered = moved + dv, covered + round((i / 30 - since) * 30)
     assert covered > 60 and moved / covered == pytest.approx(8.0, rel=0.03)
+
+
+def test_one_odd_timestamp_is_no_frame_period():
+    # the period is the second shortest of the last nine intervals: one frame stamped a microsecond
+    # after the one before does not make every later shift span thousands of periods
+    dense = DenseShift((240, 240))
+    covered = 0
+    for i, f in enumerate(faint_frames_under_a_highlight(8.0, 0.0, n=80)):
+        t = 29 / 30 + 1e-6 if i == 30 else i / 30
+        found = dense.shift(f, t)
+        if found is not None and i > 31:
+            covered += round((t - found[2]) * 30)
+    assert covered > 40
