@@ -21,7 +21,8 @@ import numpy as np
 
 from . import flow
 from .consensus import LATERAL_AXIAL, Consensus, SpeedFilter, robust_step, rolling_shutter
-from .dense import DenseShift, centre_jacobian, dense_conversion
+from .dense import DenseShift
+from .densegrid import centre_jacobian, dense_conversion
 from .estimate import Estimate
 from .gates import FrameGates, SpreadGate, reacquired
 from .geometry import Camera, Projection

@@ -7,7 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
-from crawler.dense import DenseParams, DenseShift, centre_jacobian, dense_conversion, refine, window_jacobian
+from crawler.dense import DenseParams, DenseShift, refine
+from crawler.densegrid import centre_jacobian, dense_conversion, window_jacobian
 from crawler.flow import coarse_shift
 from crawler.geometry import Camera, Mount, make_projection
 
