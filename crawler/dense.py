@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from .flow import coarse_shift, encoder_copy
+from .stands import StandParams, StandWatch
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,7 @@ class DenseParams:
     clipped_fade: float = 2.0         # the wall around is faded in over this many pixels (Gaussian sigma)
     max_clipped: float = 0.6          # a region clipped more than this share: too little wall to correlate
     clip_forgotten: float = 0.01      # a clip the running mean holds less than this of: gone (~22 frames)
+    stand: StandParams = StandParams()   # where no shift is found: a stand the frames show (stands.py)
 
 
 class DenseShift:
@@ -60,9 +62,13 @@ class DenseShift:
         self._scale = float(f)
         self._window = cv2.createHanningWindow(self._size, cv2.CV_32F)
         self.maps = None              # (map_x, map_y) of wall_grid: correlate on the wall, not the image
+        self.stands = StandWatch(self.p.stand)   # fed every frame here; reset by the odometer, not with the rest
         self.reset()
 
-    def reset(self):
+    def reset(self, stands: bool = False):
+        """Forget the frames seen (and, with `stands`, the stand watch: a frame that says nothing of one)."""
+        if stands:
+            self.stands.reset()
         self._mean = None             # the running mean of the recent frames: what stays put
         self._clip = None             # ...and of where they were clipped (None: nowhere lately)
         self._prev = None             # the last frame flat-fielded, and where it is clipped (None: nowhere)
@@ -85,8 +91,9 @@ class DenseShift:
         """((du, dv), response, since_s): the shift since the last one returned (the sum of the
         confirmed frame-to-frame shifts, from the frame taken at since_s), or None while warming
         up, unsure or waiting for confirmation."""
-        before, since = self._prev, self._prev_t
+        before, since, seen = self._prev, self._prev_t, self._prev_small is not None
         found = self._frame_shift(roi)
+        self.stands.update(t_s, self._prev_small, seen)
         self._prev_t = t_s
         periods = self._periods(t_s, since)
         if found is None and self._frozen and self._last_dv is not None and abs(self._last_dv[-1]) <= self.p.stop_px:

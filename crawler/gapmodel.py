@@ -28,11 +28,12 @@ class BridgeParams:
     max_bridge_s: float = 30.0        # beyond this the model is a guess: the speed fades to 0 over it
     pose_sigma_m: float = 0.0         # the camera's pitching on the car, as wall metres (measurement.py)
     jitter_memory: float = 0.05       # weight of each frame in the running jitter estimate (~1 s at 30 fps)
+    min_drive_accel_m_s2: float = 0.25   # the gentlest brake or start into or out of a stand the video showed
 
 
 @dataclass
 class Gap:
-    """One gap, as seen at its start."""
+    """One gap, as seen at its start, and the stands the frames showed inside it."""
 
     t0: float                         # the last measured frame before it
     d0: float                         # the distance published then
@@ -40,6 +41,47 @@ class Gap:
     a0: float                         # acceleration then (0 if unknown)
     sa: float = 0.0                   # ...and its 1-sigma error
     up: float = 0.0                   # the rate of a crawler speeding up into it: not carried, it settles it
+    stood_s: float = 0.0              # the stands the frames showed, closed (crawler/stands.py), with their edges
+    stand: tuple | None = None        # an open one: (since, until)
+    edges_var: float = 0.0            # the variance of the brakes and starts into and out of them
+
+
+def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
+    """Account a blind frame that shows a stand (since, until), or none (crawler/stands.py). The
+    frames show it from where the crawler stopped to where it set off again; a brake from v at rate a
+    covers what v covers in half its time, so the model, which carries v up to the stand, takes it
+    to begin v / 2a earlier, and to end as much later for the start out of it. The rate is not seen:
+    anything from min_drive_accel_m_s2 to max_accel_m_s2, so the middle, with its uniform variance."""
+    if stand is not None and g.stand is not None and stand[0] == g.stand[0]:
+        g.stand = stand                                # the same stand goes on
+        return
+    if g.stand is not None:                            # it ended: the start out of it
+        g.stood_s += max(0.0, g.stand[1] - max(g.stand[0], g.t0))
+        _edge(p, g, 3.0)
+    g.stand = stand
+    if stand is not None:                              # a new one: the brake into it
+        _edge(p, g, 1.0)
+
+
+def _edge(p: BridgeParams, g: Gap, share: float):
+    """One brake or start: half its time as stood, the rate's range as variance. One drive brakes and
+    sets off alike, so a stand's two are one error twice: the start adds three times the brake's
+    variance, making the stand's (2 x)^2."""
+    v = abs(g.v0 or 0.0)
+    quick, gentle = v / (2 * p.max_accel_m_s2), v / (2 * p.min_drive_accel_m_s2)
+    g.stood_s += 0.5 * (quick + gentle)
+    g.edges_var += share * (v * (gentle - quick)) ** 2 / 12.0
+
+
+def model_time(g: Gap, t: float) -> tuple[float, float]:
+    """The motion model's time from the gap's start to t, and the variance it adds: the time the
+    frames did not show the crawler standing, and the variance of the brakes and starts into and
+    out of the stands they showed. A gap whose model brakes to a stop by itself keeps all its time
+    (the stand shown is the one it implies; the start after it is read from the speed after)."""
+    if stops(g, t - g.t0) is not None:
+        return t - g.t0, 0.0
+    open_s = t - max(g.stand[0], g.t0) if g.stand is not None else 0.0
+    return max(0.0, t - g.t0 - g.stood_s - open_s), g.edges_var
 
 
 def travel(p: BridgeParams, g: Gap, T: float) -> float:

@@ -37,7 +37,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from .consensus import FadingMean, median
-from .gapmodel import BridgeParams, Gap, model_var, settled_travel, stops, travel
+from .gapmodel import BridgeParams, Gap, model_time, model_var, see_stand, settled_travel, stops, travel
 from .motionfit import ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured, slope as _slope
 
 
@@ -145,13 +145,14 @@ class GapBridge:
             self._gap = Gap(t0, self._out_m, *self._motion_before(t0))
             self._gap_prev_var = 0.0
         g = self._gap
-        T = est.t_s - g.t0
-        var = model_var(self.p, T, g.v0, sa=g.sa)
+        see_stand(self.p, g, getattr(est, "stand", None))     # (a plain estimate shows none)
+        T, stands_var = model_time(g, est.t_s)
+        var = model_var(self.p, T, g.v0, sa=g.sa) + stands_var
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
         out = g.d0 + travel(self.p, g, T)
         jitter = self._jitter.value + max(self.p.pose_sigma_m, self._pitch_m) ** 2
-        return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + jitter), True, step, T)
+        return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + jitter), True, step, est.t_s - g.t0)
 
     # -- measured -------------------------------------------------------------------------------------
 
@@ -192,7 +193,8 @@ class GapBridge:
         total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var) + jitter
         if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
             g = self._gap
-            total += model_var(self.p, self._settling[0] - g.t0, g.v0, sa=g.sa)
+            T, stands_var = model_time(g, self._settling[0])
+            total += model_var(self.p, T, g.v0, sa=g.sa) + stands_var
         # for the fusion: the white part only (the pose term is slow, a filter must not average it)
         noise = math.hypot(self._frame_noise(est), math.sqrt(self._jitter.value))
         return Bridged(self._out_m, math.sqrt(total), False, noise, gap_T)
@@ -236,7 +238,8 @@ class GapBridge:
             # measured since a fresh start inside the gap (the offset was set then): up to that
             # start the gap is the model's, at the speed before it, and so is its uncertainty
             self._gap = None
-            self.var_gaps += model_var(self.p, restarted[0] - g.t0, g.v0, sa=g.sa)
+            T_model, stands_var = model_time(g, restarted[0])
+            self.var_gaps += model_var(self.p, T_model, g.v0, sa=g.sa) + stands_var
             self._hist.append((restarted[0], restarted[1] + self.offset_m))   # measured again: a speed
         else:                         # a fresh start: provisionally the model's, settled later
             samples = [(est.t_s, est.distance_m)]
@@ -246,7 +249,7 @@ class GapBridge:
             elif since is not None and g.t0 < since[0] < est.t_s:
                 samples.insert(0, since)  # a fresh start that knows its motion over a few frames
             t1, d1 = samples[0]
-            self.offset_m = g.d0 + travel(self.p, g, t1 - g.t0) - d1
+            self.offset_m = g.d0 + travel(self.p, g, model_time(g, t1)[0]) - d1
             self._settling = (t1, samples)
         self._kf_vision = est.distance_m
         return T
@@ -262,7 +265,7 @@ class GapBridge:
         span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
         enough = span >= self.p.min_history_s - _TIME_EPS
         v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if enough else None
-        v_end, a1, T = v1, 0.0, t1 - g.t0
+        (T, stands_var), v_end, a1 = model_time(g, t1), v1, 0.0
         stopped = stops(g, T) is not None
         if v1 is not None and len(samples) >= 5 and span >= 0.5 * self.p.history_s:
             # speeding up or slowing down since it was seen again: the speed at the gap's end, and
@@ -295,7 +298,7 @@ class GapBridge:
         # both ends known: the trapezoid's residual; only the speed after, or a stop the model
         # guessed inside the gap: as unsure as while blind
         both = g.v0 is not None and not stopped
-        self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var
+        self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var + stands_var
         self._gap = None
 
 

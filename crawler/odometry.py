@@ -78,7 +78,7 @@ class Odometer:
         self._jv = 0.0
         self._unmeasured_since = None   # the first frame not measured since the last measurement
         self._after_dense = False  # the last measurement was dense: a new keyframe misses a frame's motion
-        self._dense.reset()
+        self._dense.reset(stands=True)
         self._speed = SpeedFilter(self.params.speed_window_s)
         self._spread = SpreadGate(self.params, self.m_per_px)
         self._blind_restart = False
@@ -107,6 +107,7 @@ class Odometer:
             est = self._start(roi, t_s) if self._kf is None else self._measure(roi, t_s)
             if est.tracking:
                 self._gates.remember(roi, energy)
+                self._dense.stands.measured()
                 est.texture_dn = energy
             return est
         finally:
@@ -114,14 +115,12 @@ class Odometer:
 
     @property
     def reference(self):
-        """(ROI image, distance, lateral) of the last tracked frame, or None: what a restarted
-        daemon measures its first frames against (the image is the odometer's own copy)."""
+        """(ROI image, distance, lateral) of the last tracked frame (the odometer's own copy), or None."""
         return None if self._good_roi is None else (self._good_roi, *self._good_at)
 
     def resume_from(self, img: np.ndarray, distance: float, lateral: float, t_s: float) -> bool:
-        """Start from a saved reference (a restart): its image becomes the keyframe, at its distance.
-        The next frames are measured against it with the wide search, as after lost frames; if they
-        do not overlap it, the odometer starts afresh and says so (Estimate.continuous)."""
+        """Start from a saved reference (a restart): its image is the keyframe, at its distance. The next
+        frames are measured against it with the wide search; not overlapping, it starts afresh (continuous)."""
         self.reset(distance, lateral)
         if img.shape != (self.roi[3], self.roi[2]) or not self._new_keyframe(img, t_s):
             self.reset(distance, lateral)
@@ -336,14 +335,13 @@ class Odometer:
     def _blind(self, t_s) -> Estimate:
         """A frame with nothing to measure (dark, featureless): lost, the keyframe kept for later."""
         self.lost_frames, self._prev_pts = self.lost_frames + 1, None
-        if self._unmeasured_since is None:
-            self._unmeasured_since = t_s
+        self._unmeasured_since = t_s if self._unmeasured_since is None else self._unmeasured_since
         return self._estimate(t_s, False, 0, 0, None, keyframe=False)
 
     def _untextured(self, roi, t_s, energy: float) -> Estimate:
         """Too little texture for features: the dense shift, if the wall is lit and it finds one."""
         if self._gates.dark(roi) or energy < self.params.dense.min_energy_dn:
-            self._dense.reset()               # an LED blackout, or a frame the encoder flattened
+            self._dense.reset(stands=True)    # an LED blackout, or a frame the encoder flattened
             return self._blind(t_s)
         found = self._dense.shift(roi, t_s)
         dt = t_s - self._prev_t if self._prev_t is not None else 0.0
@@ -397,4 +395,5 @@ class Odometer:
             lateral_m=self.lateral, roll_deg=math.degrees(self.lateral / r) if r else None,
             tracking=tracking, quality=quality, tracks=n_tracked, inliers=n_in,
             spread_mm=None if sigma is None else sigma * 1000.0, keyframe=keyframe,
-            scale_sigma_m=self.pose.scale_sigma_m, pitch_m=self.pose.pitch_shown_rad * self.m_per_px * self.camera.fy)
+            scale_sigma_m=self.pose.scale_sigma_m, pitch_m=self.pose.pitch_shown_rad * self.m_per_px * self.camera.fy,
+            stand=None if tracking else self._dense.stands.stand)   # one the frames show (stands.py)

@@ -1,10 +1,12 @@
 """The gap bridge on exactly known motion: what it carries while blind, how it settles, its sigma."""
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from crawler.gapmodel import Gap, model_time, see_stand
 from crawler.gaps import BridgeParams, GapBridge
 
 FPS = 30.0
@@ -425,3 +427,56 @@ def test_a_frame_caught_between_two_gaps_gives_the_distance_not_a_brake():
         bridge.update(est(t, d, keyframe=i % 10 == 0))
     bridge.update(est(34 / FPS, 0.0, tracking=False))
     assert bridge._gap.a0 < -0.3
+
+
+def blind_with_stands(truth, blind_from, end_s, stands, frames_late=3):
+    """Measured up to blind_from, blind after it; each blind frame shows the stands (stop, start) as
+    crawler/stands.py says them: from `frames_late` frames after the stop, until as many after the
+    start. Returns (times, published, sigma)."""
+    bridge, out = GapBridge(), []
+    late = frames_late / FPS
+    for t in np.arange(0, end_s, 1 / FPS):
+        if t < blind_from:
+            b = bridge.update(est(t, truth(t), keyframe=round(t * FPS) % 10 == 0))
+        else:
+            e = est(t, truth(blind_from), tracking=False)
+            e.stand = next(((a, min(t, b)) for a, b in stands if a + late <= t < b + late), None)
+            b = bridge.update(e)
+        out.append((t, b.distance_m, b.sigma_m))
+    return [np.array(c) for c in zip(*out)]
+
+
+def test_a_stand_the_frames_show_inside_a_gap_is_not_carried_at_the_speed_before_it():
+    # braking and setting off at 0.4 m/s^2, the middle of the rates the bridge allows for (it does not
+    # see them): a stand shown from the stop to the start is then exact
+    v, a = 0.1, 0.4
+    stands = [(2.0 + v / a, 3.5), (4.5 + v / a, 5.2)]
+    truth = lambda t: (brake_stand_go(v, 2.0, a, 3.5, a)(t) if t < 4.4          # noqa: E731
+                       else brake_stand_go(v, 2.0, a, 3.5, a)(4.4) + brake_stand_go(v, 0.1, a, 0.8, a)(t - 4.4))
+    t, d, s = blind_with_stands(truth, 1.0, 6.5, stands)
+    err = d - np.array([truth(x) for x in t])
+    # once a stand is seen (three frames after the stop, carried at 0.1 m/s until then) and once the
+    # crawler is seen to set off, the distance is the truth's; carried through, it ends 0.15 m long
+    settled = (t > stands[0][0] + 0.2) & (t < stands[0][1]) | (t > stands[1][0] + 0.2) & (t < stands[1][1]) \
+        | (t > stands[1][1] + 0.4)
+    assert np.max(np.abs(err[settled])) < 0.001
+    assert np.all(np.abs(err) <= 2 * s)
+    during = (t > stands[0][0] + 0.2) & (t < stands[0][1])
+    assert np.ptp(d[during]) == 0               # nothing carried while it stood
+    # without the stands shown, the same gap is carried through them
+    t2, d2, _ = blind_with_stands(truth, 1.0, 6.5, [])
+    assert d2[-1] - truth(t2[-1]) > 0.1
+
+
+def test_a_stand_s_brake_and_start_are_the_middle_of_the_rates_allowed_and_their_range_its_sigma():
+    p, v = BridgeParams(), 0.1
+    g = Gap(0.0, 0.0, v, 0.0)
+    for stand in [(2.0, 2.1), (2.0, 2.5), (2.0, 3.0), None]:     # shown from 2 s on, ended at 3 s
+        see_stand(p, g, stand)
+    # a brake and a start at the middle rate (0.4 m/s^2) are worth v / 2a = 0.125 s of standing each
+    assert g.stood_s == pytest.approx(1.0 + 2 * 0.125)
+    assert model_time(g, 4.0) == (pytest.approx(4.0 - 1.25), g.edges_var)
+    for a in (p.min_drive_accel_m_s2, p.max_accel_m_s2):        # one drive: both at the same rate
+        truth_stood = 1.0 + 2 * v / (2 * a)
+        assert abs(truth_stood - g.stood_s) * v <= 2 * math.sqrt(g.edges_var)
+        assert abs(truth_stood - g.stood_s) * v > 1.4 * math.sqrt(g.edges_var)  # (not a sigma to spare)

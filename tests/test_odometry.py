@@ -513,3 +513,31 @@ def test_a_dense_start_hands_on_the_speed_of_its_frames_not_their_sum_in_one(tex
     assert e.since is not None and e.since[0] < e.t_s - 1.5 / 30
     speed = 8.0 * 30 * M_PER_PX
     assert odo.guess(e.t_s + 1 / 30)[0] - odo.guess(e.t_s)[0] == pytest.approx(speed / 30, rel=0.05)
+
+
+def test_a_stand_on_a_wall_too_faint_to_measure_is_in_the_blind_frames_it_shows(texture):
+    # a wet wall, then one too faint for features (the dense shift measures it moving 4 px a frame),
+    # standing 30 frames (the camera's noise fresh in each: the dense shift finds nothing), moving
+    # again: the frames that cannot be measured say since when it stands (crawler/stands.py), so
+    # the gap bridge can stop its clock (gaps.py)
+    yy, xx = np.mgrid[0:480, 0:640]
+    lobe = 120.0 * np.exp(-((xx - 320.0) ** 2 + (yy - 250.0) ** 2) / (2 * 60.0 ** 2))
+    wet, faint = 100 + 0.25 * (texture.astype(np.float32) - 128), 100 + 0.5 * (faint_wall(texture) - 120)
+    rng = np.random.default_rng(2)
+    pos = np.concatenate([np.arange(41) * 4.0, np.full(29, 160.0), 160.0 + np.arange(1, 31) * 4.0])
+    stop, start = 40, 69                      # the stand: from frame 40 to frame 69
+    odo = Odometer(CAM, make_projection("pixel", MOUNT), ROI)
+    est = []
+    for i, y in enumerate(pos):
+        m = np.float32([[1, 0, 0], [0, 1, y - 5000]])
+        img = cv2.warpAffine(wet if i < 15 else faint, m, (640, 480), flags=cv2.INTER_LINEAR)
+        img = img + lobe + rng.normal(0, 0.5, lobe.shape)
+        est.append(odo.update(np.clip(img, 0, 255).astype(np.uint8), i / 30))
+    assert all(e.tracking and e.inliers == 0 for e in est[stop - 10:stop])     # the dense shift's
+    shown = [e.stand for e in est[stop + 6:start]]
+    assert all(not e.tracking for e in est[stop + 6:start]) and all(s is not None for s in shown)
+    assert all(abs(s[0] * 30 - stop) <= 1.0 for s in shown)
+    last = [e.stand for e in est if e.stand is not None][-1]      # ...and until when
+    assert abs(last[1] * 30 - start) <= 1.0
+    assert all(e.stand is None for e in est[:stop] + est[start + 5:])
+    assert "stand" not in est[stop + 10].as_dict()     # internal: the bridge's, not a published field

@@ -1,0 +1,127 @@
+"""A stand the frames show where nothing can be measured. Pure: no I/O.
+
+On a wall too faint for features and for the dense shift (a wet stretch under the LED's highlight)
+the frames still say one thing: how much they change. While the crawler drives, a faint wall changes
+the picture as it moves under the camera; when it stands, what is left is the sensor's noise or the
+video encoder's (a still wall is copied, or coded again at a keyframe). A picture that changes far
+less than it did while the crawler drove over the same texture is a crawler that stopped.
+
+What it changed by before is only a yardstick on the same texture: a wall fading into a wet patch
+changes the picture less and less while the crawler drives on, but its texture (the frame's fine
+detail of the compared picture) fades with it, where a stand keeps it; and the changes it
+is read from must agree as a drive's do, with the light's level taken out (an LED coming back after
+a blackout changes every frame more than the last). A wall whose motion
+never showed above the noise (an encoder that flattens it, a live camera on a wall fainter than its
+noise) shows no stand, and the gap is bridged as before (crawler/gaps.py).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .consensus import median
+
+
+@dataclass(frozen=True)
+class StandParams:
+    still: float = 0.3                # a frame that changed less than this share of what the wall's motion
+                                      # changed frames by lately is still...
+    frames: int = 3                   # ...this many in a row: the crawler stands...
+    evidence: int = 5                 # ...measured against at least this many that changed with the motion,
+    alike: float = 0.25               # ...their texture within this share of the frame's
+    moves: int = 3                    # a stand ends at this many changed frames in a row (fewer: a keyframe's
+                                      # recoding of a still picture, and a B-frame after it)
+    memory: int = 9                   # the changes the yardstick is the median of
+    lag: int = 3                      # a frame's change: against the frame this many before it
+    steady: float = 1.6               # the yardstick's changes: within this factor of their median...
+    min_change_dn: float = 0.3        # ...which is at least this (grey levels a pixel; 8-bit rounding alone
+                                      # changes the compared picture by a sixth of one)
+    light_step: float = 0.02          # a frame this much brighter or darker: the light changed, not the wall
+    detail_px: float = 1.5            # the texture: what a Gaussian of this sigma (compared pixels) smooths
+
+
+class StandWatch:
+    """Fed the dense shift's quarter-size frames (a lit wall too faint for features), in order: since
+    when the crawler stands."""
+
+    def __init__(self, params: StandParams | None = None):
+        self.p = params or StandParams()
+        self.reset()
+
+    def reset(self):
+        """A dark or flattened frame (or the odometer's reset): what was seen says nothing of what comes."""
+        self.since = None             # the stand's start, or None
+        self.until = None             # ...and its end so far
+        self._seen: deque = deque(maxlen=self.p.lag + 2)   # (time, picture, light) of the last frames
+        self._moved: list = []        # (change, texture) of the recent frames that changed with the motion
+        self._stills = 0              # still frames in a row
+        self._from = None             # ...since when (half way from the frame before the first of them)
+        self._moves = 0               # changed frames in a row
+
+    def measured(self):
+        """A frame measured: any stand is over, but what the motion changed the frames by (the drive
+        into the gap) stays the yardstick."""
+        self.since, self._stills, self._moves = None, 0, 0
+
+    @property
+    def stand(self) -> tuple | None:
+        """(since, until) of the stand the frames show now, or None."""
+        return None if self.since is None else (self.since, self.until)
+
+    def update(self, t_s: float, small: np.ndarray, follows: bool = True) -> tuple | None:
+        """One frame (grey, at the dense shift's quarter size), and whether the last one fed was the
+        frame before it (a keyframe coded sharper, say, was measured, or tried, in between: what
+        changed across it is not the motion's); returns `stand`."""
+        seen = self._seen
+        f = small.astype(np.float32)
+        # compared at half that size: the wall's grain is a few pixels wide, a sensor's noise and an
+        # 8-bit picture's rounding (a third of a grey level, each pixel its own) are one
+        coarse = cv2.resize(f, (f.shape[1] // 2, f.shape[0] // 2), interpolation=cv2.INTER_AREA)
+        if not follows or (seen and seen[-1][1].shape != coarse.shape):
+            seen.clear()
+        light = cv2.mean(coarse)[0]
+        seen.append((t_s, coarse, light))
+        if len(seen) <= self.p.lag:
+            return self.stand
+        # against the frame `lag` before: a faint grain a crawl moves by less than its width a frame
+        # changes the picture little from one frame to the next, but all of it over a few
+        _, before, light_before = seen[-1 - self.p.lag]
+        if abs(light - light_before) > self.p.light_step * max(light, light_before, 1.0):
+            return self.stand         # the light changed (an LED coming back): not the motion's change
+        # with the light's level taken out: an LED dimming or coming back scales the whole picture
+        level = 0.5 * (light + light_before)
+        change = cv2.norm(coarse * (level / max(light, 1.0)), before * (level / max(light_before, 1.0)),
+                          cv2.NORM_L1) / coarse.size
+        t_prev = seen[-2][0]
+        texture = float(cv2.meanStdDev(coarse - cv2.GaussianBlur(coarse, (0, 0), self.p.detail_px))[1][0, 0])
+        # the crawler stopped (or set off) between two frames: half way, as near as the frames say
+        yardstick = self._yardstick(texture)
+        if yardstick is None or change >= self.p.still * yardstick:
+            if self.since is not None and not self._moves:
+                self.until = 0.5 * (t_prev + t_s)
+            self._moves, self._stills = self._moves + 1, 0
+            self._moved = (self._moved + [(change, texture)])[-self.p.memory:]
+            if self.since is not None and self._moves >= self.p.moves:
+                self.since = None
+            return self.stand
+        if not self._stills:          # still since the frame `lag` before, not since the one before that
+            self._from = 0.5 * (seen[max(0, len(seen) - 2 - self.p.lag)][0] + seen[-1 - self.p.lag][0])
+        self._stills, self._moves, self.until = self._stills + 1, 0, t_s
+        if self.since is None and self._stills >= self.p.frames:
+            self.since = self._from
+        return self.stand
+
+    def _yardstick(self, texture: float) -> float | None:
+        """What the motion changed frames of this texture by lately (a fading wall's are not alike),
+        if they agree as a drive's do (a light coming back, a fade, do not) and stand out of an 8-bit
+        picture's rounding; None: no yardstick."""
+        like = [c for c, tx in self._moved if abs(tx - texture) <= self.p.alike * texture]
+        if len(like) < self.p.evidence:
+            return None
+        mid = median(like)
+        steady = sum(mid / self.p.steady <= c <= mid * self.p.steady for c in like)
+        return mid if steady >= self.p.evidence and mid >= self.p.min_change_dn else None
