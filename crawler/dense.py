@@ -66,7 +66,7 @@ class DenseShift:
         self.reset()
 
     def reset(self, stands: bool = False):
-        """Forget the frames seen (and, with `stands`, the stand watch: a frame that says nothing of one)."""
+        """Forget the frames seen (and, with `stands`, what the stand watch saw: the odometer's reset)."""
         if stands:
             self.stands.reset()
         self._mean = None             # the running mean of the recent frames: what stays put
@@ -81,6 +81,12 @@ class DenseShift:
         self._intervals = None        # the last intervals between frames (a list, made when first needed)
         self._frozen = False          # the last frame was the encoder's copy of the one before
 
+    def watch(self, roi: np.ndarray, t_s: float) -> tuple | None:
+        """Show the stand watch a frame the odometer could not measure but did not give the dense shift
+        (texture enough to try features on, as a faint wall's frames the encoder copies may have):
+        the stand it shows, if any."""
+        return self.stands.update(t_s, cv2.resize(roi, self._size, interpolation=cv2.INTER_AREA))
+
     def resample(self, maps):
         """Resample the frames with these maps (dense_conversion's) from now on; what was seen on the
         old grid is forgotten."""
@@ -91,9 +97,9 @@ class DenseShift:
         """((du, dv), response, since_s): the shift since the last one returned (the sum of the
         confirmed frame-to-frame shifts, from the frame taken at since_s), or None while warming
         up, unsure or waiting for confirmation."""
-        before, since, seen = self._prev, self._prev_t, self._prev_small is not None
+        before, since = self._prev, self._prev_t
         found = self._frame_shift(roi)
-        self.stands.update(t_s, self._prev_small, seen)
+        self.stands.update(t_s, self._prev_small)
         self._prev_t = t_s
         periods = self._periods(t_s, since)
         if found is None and self._frozen and self._last_dv is not None and abs(self._last_dv[-1]) <= self.p.stop_px:

@@ -87,8 +87,7 @@ class Odometer:
 
     def set_distance(self, distance: float = 0.0):
         """Count from `distance` now, without losing track (an operator's reset mid-run)."""
-        delta = distance - self.distance
-        self.distance = distance
+        delta, self.distance = distance - self.distance, distance
         if self._kf is not None:
             self._kf.distance += delta
         self._speed.reset()
@@ -109,6 +108,8 @@ class Odometer:
                 self._gates.remember(roi, energy)
                 self._dense.stands.measured()
                 est.texture_dn = energy
+            else:
+                est.stand = self._dense.watch(roi, t_s)
             return est
         finally:
             self._prev_t = t_s
@@ -142,9 +143,7 @@ class Odometer:
     @property
     def tracked_points(self) -> np.ndarray:
         """Current positions (frame pixels) of the features in use, for drawing."""
-        if self._prev_pts is None:
-            return np.empty((0, 2))
-        return self._prev_pts + self._offset
+        return np.empty((0, 2)) if self._prev_pts is None else self._prev_pts + self._offset
 
     @property
     def track_origins(self) -> np.ndarray:
@@ -341,7 +340,8 @@ class Odometer:
     def _untextured(self, roi, t_s, energy: float) -> Estimate:
         """Too little texture for features: the dense shift, if the wall is lit and it finds one."""
         if self._gates.dark(roi) or energy < self.params.dense.min_energy_dn:
-            self._dense.reset(stands=True)    # an LED blackout, or a frame the encoder flattened
+            self._dense.reset()               # an LED blackout, or a frame the encoder flattened
+            self._dense.stands.unseen()
             return self._blind(t_s)
         found = self._dense.shift(roi, t_s)
         dt = t_s - self._prev_t if self._prev_t is not None else 0.0

@@ -33,9 +33,11 @@ class StandParams:
     frames: int = 3                   # ...this many in a row: the crawler stands...
     evidence: int = 5                 # ...measured against at least this many that changed with the motion,
     alike: float = 0.25               # ...their texture within this share of the frame's
-    moves: int = 3                    # a stand ends at this many changed frames in a row (fewer: a keyframe's
-                                      # recoding of a still picture, and a B-frame after it)
+    moves: int = 4                    # a stand ends at this many changed frames in a row (fewer: a keyframe
+                                      # that codes the still picture anew changes `lag` comparisons)
     memory: int = 9                   # the changes the yardstick is the median of
+    slow: float = 0.6                 # a frame that changed less than this share of it is slow (a brake's)...
+    slow_frames: int = 6              # ...and becomes part of it only this many in a row (a slower drive)
     lag: int = 3                      # a frame's change: against the frame this many before it
     steady: float = 1.6               # the yardstick's changes: within this factor of their median...
     min_change_dn: float = 0.3        # ...which is at least this (grey levels a pixel; 8-bit rounding alone
@@ -53,7 +55,7 @@ class StandWatch:
         self.reset()
 
     def reset(self):
-        """A dark or flattened frame (or the odometer's reset): what was seen says nothing of what comes."""
+        """The odometer's reset: what was seen says nothing of what comes."""
         self.since = None             # the stand's start, or None
         self.until = None             # ...and its end so far
         self._seen: deque = deque(maxlen=self.p.lag + 2)   # (time, picture, light) of the last frames
@@ -61,6 +63,15 @@ class StandWatch:
         self._stills = 0              # still frames in a row
         self._from = None             # ...since when (half way from the frame before the first of them)
         self._moves = 0               # changed frames in a row
+        self._slow = 0                # ...of them slow ones
+        self._stand_yardstick = None  # the yardstick the open stand was seen against
+
+    def unseen(self):
+        """A dark or flattened frame: nothing to compare across it. What the drive changed frames by,
+        and a stand, stay: a stand goes on if the frames after it are still, and ends if not; what
+        the crawler did meanwhile is the gap bridge's (it counts a stand only up to its last still
+        frame)."""
+        self._seen.clear()
 
     def measured(self):
         """A frame measured: any stand is over, but what the motion changed the frames by (the drive
@@ -72,16 +83,18 @@ class StandWatch:
         """(since, until) of the stand the frames show now, or None."""
         return None if self.since is None else (self.since, self.until)
 
-    def update(self, t_s: float, small: np.ndarray, follows: bool = True) -> tuple | None:
-        """One frame (grey, at the dense shift's quarter size), and whether the last one fed was the
-        frame before it (a keyframe coded sharper, say, was measured, or tried, in between: what
-        changed across it is not the motion's); returns `stand`."""
+    def update(self, t_s: float, small: np.ndarray) -> tuple | None:
+        """One frame (grey, at the dense shift's quarter size); returns `stand`. (Frames the odometer
+        measured, or tried features on, in between are not fed: a keyframe coded sharper changes
+        `lag` comparisons at most, fewer than end a stand.)"""
         seen = self._seen
+        if min(small.shape) < 4:      # (no picture to halve)
+            return self.stand
         f = small.astype(np.float32)
         # compared at half that size: the wall's grain is a few pixels wide, a sensor's noise and an
         # 8-bit picture's rounding (a third of a grey level, each pixel its own) are one
         coarse = cv2.resize(f, (f.shape[1] // 2, f.shape[0] // 2), interpolation=cv2.INTER_AREA)
-        if not follows or (seen and seen[-1][1].shape != coarse.shape):
+        if seen and seen[-1][1].shape != coarse.shape:
             seen.clear()
         light = cv2.mean(coarse)[0]
         seen.append((t_s, coarse, light))
@@ -100,19 +113,26 @@ class StandWatch:
         texture = float(cv2.meanStdDev(coarse - cv2.GaussianBlur(coarse, (0, 0), self.p.detail_px))[1][0, 0])
         # the crawler stopped (or set off) between two frames: half way, as near as the frames say
         yardstick = self._yardstick(texture)
+        if yardstick is None and self.since is not None:
+            yardstick = self._stand_yardstick     # the still picture coded anew, its texture changed
         if yardstick is None or change >= self.p.still * yardstick:
             if self.since is not None and not self._moves:
                 self.until = 0.5 * (t_prev + t_s)
             self._moves, self._stills = self._moves + 1, 0
-            self._moved = (self._moved + [(change, texture)])[-self.p.memory:]
-            if self.since is not None and self._moves >= self.p.moves:
-                self.since = None
+            # a slow frame (a brake's) is a drive's only when it goes on: taken at once, a brake's
+            # frames pulled the yardstick down until a stand's noise passed for a drive
+            slow = yardstick is not None and change < self.p.slow * yardstick
+            self._slow = self._slow + 1 if slow else 0
+            if self.since is None and (not slow or self._slow >= self.p.slow_frames):
+                self._moved = (self._moved + [(change, texture)])[-self.p.memory:]
+            elif self.since is not None and self._moves >= self.p.moves:
+                self.since = None     # (inside a stand a change is not yet the drive's: a keyframe's)
             return self.stand
         if not self._stills:          # still since the frame `lag` before, not since the one before that
             self._from = 0.5 * (seen[max(0, len(seen) - 2 - self.p.lag)][0] + seen[-1 - self.p.lag][0])
-        self._stills, self._moves, self.until = self._stills + 1, 0, t_s
+        self._stills, self._moves, self._slow, self.until = self._stills + 1, 0, 0, t_s
         if self.since is None and self._stills >= self.p.frames:
-            self.since = self._from
+            self.since, self._stand_yardstick = self._from, yardstick
         return self.stand
 
     def _yardstick(self, texture: float) -> float | None:

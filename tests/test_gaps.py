@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from crawler.gapmodel import Gap, model_time, see_stand
+from crawler.gapmodel import Gap, model_time, see_stand, settled_travel
 from crawler.gaps import BridgeParams, GapBridge
 
 FPS = 30.0
@@ -450,9 +450,9 @@ def test_a_stand_the_frames_show_inside_a_gap_is_not_carried_at_the_speed_before
     # braking and setting off at 0.4 m/s^2, the middle of the rates the bridge allows for (it does not
     # see them): a stand shown from the stop to the start is then exact
     v, a = 0.1, 0.4
-    stands = [(2.0 + v / a, 3.5), (4.5 + v / a, 5.2)]
+    stands = [(2.0 + v / a, 3.5), (4.5 + v / a, 5.4)]
     truth = lambda t: (brake_stand_go(v, 2.0, a, 3.5, a)(t) if t < 4.4          # noqa: E731
-                       else brake_stand_go(v, 2.0, a, 3.5, a)(4.4) + brake_stand_go(v, 0.1, a, 0.8, a)(t - 4.4))
+                       else brake_stand_go(v, 2.0, a, 3.5, a)(4.4) + brake_stand_go(v, 0.1, a, 1.0, a)(t - 4.4))
     t, d, s = blind_with_stands(truth, 1.0, 6.5, stands)
     err = d - np.array([truth(x) for x in t])
     # once a stand is seen (three frames after the stop, carried at 0.1 m/s until then) and once the
@@ -480,3 +480,53 @@ def test_a_stand_s_brake_and_start_are_the_middle_of_the_rates_allowed_and_their
         truth_stood = 1.0 + 2 * v / (2 * a)
         assert abs(truth_stood - g.stood_s) * v <= 2 * math.sqrt(g.edges_var)
         assert abs(truth_stood - g.stood_s) * v > 1.4 * math.sqrt(g.edges_var)  # (not a sigma to spare)
+
+
+def test_a_gap_whose_model_brakes_to_a_stop_keeps_its_own_clock_through_a_stand_shown():
+    # braking into the gap, the model stops by itself: a stand the frames show is the one it implies,
+    # and the distance neither jumps when the model reaches its stop nor counts the brake twice
+    truth = brake_stand_go(0.2, 1.0, 0.2, 99.0, 0.2)           # brakes from 1 s, stands from 2 s
+    shown, plain = [], []
+    for stands in ([(2.0, 99.0)], []):
+        t, d, s = blind_with_stands(truth, 1.3, 4.0, stands)
+        (shown if stands else plain).append(d)
+    assert np.array_equal(shown[0], plain[0])
+    assert np.max(np.abs(np.diff(shown[0]))) < 0.2 / FPS + 1e-9
+
+
+def test_a_stand_still_open_when_the_wall_is_measured_again_counts_up_to_its_last_still_frame():
+    p, v = BridgeParams(), 0.1
+    g = Gap(0.0, 0.0, v, 0.0)
+    see_stand(p, g, (2.0, 2.9))           # shown from 2 s, last still frame at 2.9 s
+    T, var = model_time(g, 3.2)           # measured again at 3.2 s, the stand not yet seen to end
+    assert T == pytest.approx(3.2 - 0.9 - 0.125)     # its brake counted, its last 0.3 s driven
+    assert var == pytest.approx(g.edges_var) and var > 0
+
+
+def test_a_gap_with_stands_shown_drove_at_the_speed_before_between_them_and_changed_at_its_end():
+    # it cruised at 0.1 m/s into a wet stretch, stood (shown), drove on, and was braking at 0.4 m/s^2
+    # when the wall came back (0.06 m/s measured): the trapezoid spread that brake over the 1.7 s it
+    # drove (0.138 m); it came at the end (0.168 m)
+    p = BridgeParams()
+    g = Gap(0.0, 0.0, 0.1, 0.0)
+    for stand in [(1.0, 1.5), None]:
+        see_stand(p, g, stand)
+    T = model_time(g, 2.45)[0]                          # 2.45 s less 0.5 s shown, less its brake and start
+    assert T == pytest.approx(1.7)
+    d, _ = settled_travel(p, g, T, 0.06)
+    assert d == pytest.approx(0.1 * 1.7 - 0.04 ** 2 / (2 * 0.4))
+    plain = Gap(0.0, 0.0, 0.1, 0.0)                     # no stand shown: the trapezoid, as before
+    assert settled_travel(p, plain, 1.7, 0.06)[0] == pytest.approx(0.5 * (0.1 + 0.06) * 1.7)
+
+
+def test_a_stand_shown_for_less_than_half_a_second_is_none():
+    # an encoder that stopped coding a faint wall for a moment copied it while the crawler drove on:
+    # a lobe run read -12.4 % where it reads -0.03 % now
+    p = BridgeParams()
+    g, plain = Gap(0.0, 0.0, 0.2, 0.0), Gap(0.0, 0.0, 0.2, 0.0)
+    for stand in [(1.0, 1.1), (1.0, 1.3), (1.0, 1.4), None]:
+        see_stand(p, g, stand)
+    assert model_time(g, 3.0) == model_time(plain, 3.0) == (3.0, 0.0)
+    for stand in [(1.0, 1.1), (1.0, 1.5), None]:       # half a second: a stand
+        see_stand(p, g, stand)
+    assert model_time(g, 3.0)[0] == pytest.approx(3.0 - 0.5 - 2 * 1.25 * 0.2)
