@@ -46,6 +46,8 @@ class Gap:
     stand: tuple | None = None        # an open one: (since, until)
     edges_var: float = 0.0            # the variance of the brakes and starts into and out of them
     brake: tuple = (0.0, 0.0)         # ...what the open one's brake added to those two
+    last_end: float | None = None     # where the last stand shown ended
+    before_last: float = 0.0          # ...and the model's time up to its start
 
 
 def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
@@ -62,6 +64,7 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
     if g.stand is not None:                            # it ended: the start out of it, or none at all
         shown = g.stand[1] - max(g.stand[0], g.t0)
         if shown >= p.min_stand_s:
+            g.before_last, g.last_end = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s), g.stand[1]
             g.stood_s += shown
             _edge(p, g, 3.0)
         else:
@@ -71,6 +74,19 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
         before = (g.stood_s, g.edges_var)
         _edge(p, g, 1.0)
         g.brake = (g.stood_s - before[0], g.edges_var - before[1])
+
+
+def set_off(p: BridgeParams, g: Gap, t1: float, v1: float, a1: float) -> float | None:
+    """After a stand shown, a crawler still speeding up when the wall is measured again (at t1, v1,
+    at a1) set off from rest v1 / a1 before: the gap's distance is the model's up to that stand and
+    the ramp since (the model carried the speed before the gap after it, which a gap that opened
+    during a brake had low). None: no stand ended in the gap, it is not seen speeding up, or the
+    ramp would have begun before the stand ended (0.1 s allowed: the end is seen a frame or two late)."""
+    if g.last_end is None or g.stand is not None or not a1 or a1 * v1 <= 0:
+        return None
+    if abs(v1 / a1) > t1 - g.last_end + 0.1:
+        return None
+    return travel(p, g, g.before_last) + math.copysign(v1 * v1 / (2 * abs(a1)), v1)
 
 
 def drive_rate(p: BridgeParams) -> float:

@@ -37,7 +37,7 @@ from collections import deque
 from dataclasses import dataclass
 
 from .consensus import FadingMean, median
-from .gapmodel import BridgeParams, Gap, model_time, model_var, see_stand, settled_travel, stops, travel
+from .gapmodel import BridgeParams, Gap, model_time, model_var, see_stand, set_off, settled_travel, stops, travel
 from .motionfit import ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured, slope as _slope
 
 
@@ -287,7 +287,8 @@ class GapBridge:
             self._restarted = samples[0]
             return
         self._settled_v = (samples[-1][0], v1)
-        corrected, unseen_var = settled_travel(self.p, g, T, v_end, a1)
+        after = set_off(self.p, g, t1, v_end, a1)          # (a stand shown, a start seen after it)
+        corrected, unseen_var = (after, 0.0) if after is not None else settled_travel(self.p, g, T, v_end, a1)
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
         self.offset_m += correction
         self._out_m += correction

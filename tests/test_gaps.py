@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from crawler.gapmodel import Gap, model_time, see_stand, settled_travel
+from crawler.gapmodel import Gap, model_time, see_stand, set_off, settled_travel
 from crawler.gaps import BridgeParams, GapBridge
 
 FPS = 30.0
@@ -530,3 +530,18 @@ def test_a_stand_shown_for_less_than_half_a_second_is_none():
     for stand in [(1.0, 1.1), (1.0, 1.5), None]:       # half a second: a stand
         see_stand(p, g, stand)
     assert model_time(g, 3.0)[0] == pytest.approx(3.0 - 0.5 - 2 * 1.25 * 0.2)
+
+
+def test_a_crawler_seen_speeding_up_after_a_stand_shown_set_off_from_rest():
+    # the gap opened during a brake (0.044 m/s), the frames showed a stand from 1.0 to 2.0 s, and
+    # at 2.3 s the wall is measured again, the crawler at 0.15 m/s, speeding up at 0.5 m/s^2: it set
+    # off 0.3 s before, from rest; carried at 0.044 m/s after the stand, it read 8 mm short
+    p = BridgeParams()
+    g = Gap(0.0, 0.0, 0.044, 0.0)
+    for stand in [(1.0, 1.2), (1.0, 2.0), None]:
+        see_stand(p, g, stand)
+    up_to_stand = 0.044 * (1.0 - 1.25 * 0.044)             # the model's up to the stand, its brake counted
+    assert set_off(p, g, 2.3, 0.15, 0.5) == pytest.approx(up_to_stand + 0.15 ** 2 / (2 * 0.5))
+    assert set_off(p, g, 2.3, 0.15, 0.0) is None           # no rate: not seen speeding up
+    assert set_off(p, g, 2.3, 0.3, 0.5) is None            # a 0.6 s ramp began before the stand ended
+    assert set_off(p, Gap(0.0, 0.0, 0.044, 0.0), 2.3, 0.15, 0.5) is None    # no stand shown
