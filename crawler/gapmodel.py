@@ -45,7 +45,8 @@ class Gap:
     stood_s: float = 0.0              # the stands the frames showed, closed (crawler/stands.py), with their edges
     stand: tuple | None = None        # an open one: (since, until)
     edges_var: float = 0.0            # the variance of the brakes and starts into and out of them
-    brake: tuple = (0.0, 0.0)         # ...what the open one's brake added to those two
+    confirmed: bool = False           # ...the open one has been shown for min_stand_s
+    held_from: float = 0.0            # ...and the frame it was first shown at
     last_end: float | None = None     # where the last stand shown ended
     before_last: float = 0.0          # ...and the model's time up to its start
 
@@ -56,24 +57,23 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
     covers what v covers in half its time, so the model, which carries v up to the stand, takes it
     to begin v / 2a earlier, and to end as much later for the start out of it. The rate is not seen:
     anything from min_drive_accel_m_s2 to max_accel_m_s2, so the middle, with its uniform variance.
-    A stand shown for less than min_stand_s is no stand: an encoder that stopped coding a faint
-    wall for a moment copied it while the crawler drove on (a lobe run: -0.03 -> -12.4 %)."""
-    if stand is not None and g.stand is not None and stand[0] == g.stand[0]:
-        g.stand = stand                                # the same stand goes on
-        return
-    if g.stand is not None:                            # it ended: the start out of it, or none at all
-        shown = g.stand[1] - max(g.stand[0], g.t0)
-        if shown >= p.min_stand_s:
+    A stand shown for less than min_stand_s is none: an encoder that stopped coding a faint wall
+    for a moment copied it while the crawler drove on (a lobe run: -0.03 -> -12.4 %). Until then
+    the model holds (its clock stops, nothing is taken back); from then the stand and its brake
+    count, and the distance steps back by what the brake was worth."""
+    if g.stand is not None and (stand is None or stand[0] != g.stand[0]):   # it ended
+        if g.confirmed:                                # the start out of it
             g.before_last, g.last_end = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s), g.stand[1]
-            g.stood_s += shown
+            g.stood_s += g.stand[1] - max(g.stand[0], g.t0)
             _edge(p, g, 3.0)
-        else:
-            g.stood_s, g.edges_var = g.stood_s - g.brake[0], g.edges_var - g.brake[1]
-    g.stand = stand
-    if stand is not None:                              # a new one: the brake into it
-        before = (g.stood_s, g.edges_var)
-        _edge(p, g, 1.0)
-        g.brake = (g.stood_s - before[0], g.edges_var - before[1])
+        g.stand, g.confirmed = None, False
+    if stand is not None:
+        if g.stand is None:
+            g.held_from = stand[1]                     # first shown at this frame
+        g.stand = stand
+        if not g.confirmed and stand[1] - max(stand[0], g.t0) >= p.min_stand_s:
+            g.confirmed = True                         # the brake into it
+            _edge(p, g, 1.0)
 
 
 def set_off(p: BridgeParams, g: Gap, t1: float, v1: float, a1: float) -> float | None:
@@ -81,12 +81,18 @@ def set_off(p: BridgeParams, g: Gap, t1: float, v1: float, a1: float) -> float |
     at a1) set off from rest v1 / a1 before: the gap's distance is the model's up to that stand and
     the ramp since (the model carried the speed before the gap after it, which a gap that opened
     during a brake had low). None: no stand ended in the gap, it is not seen speeding up, or the
-    ramp would have begun before the stand ended (0.1 s allowed: the end is seen a frame or two late)."""
-    if g.last_end is None or g.stand is not None or not a1 or a1 * v1 <= 0:
+    ramp did not begin as the stand ended (within 0.1 s: the end is seen a frame or two late)."""
+    if g.last_end is None or g.stand is not None or not a1 or a1 * v1 <= 0 or braking(g):
         return None
-    if abs(v1 / a1) > t1 - g.last_end + 0.1:
+    if abs(t1 - abs(v1 / a1) - g.last_end) > 0.1:     # it set off as the stand ended, not long after
         return None
     return travel(p, g, g.before_last) + math.copysign(v1 * v1 / (2 * abs(a1)), v1)
+
+
+def braking(g: Gap) -> bool:
+    """Does the gap's model brake to a stop by itself (a brake seen before it)? Then a stand shown is
+    the one it implies: it keeps its own clock."""
+    return g.v0 is not None and g.a0 * g.v0 < 0
 
 
 def drive_rate(p: BridgeParams) -> float:
@@ -111,9 +117,11 @@ def model_time(g: Gap, t: float) -> tuple[float, float]:
     what came after it is not seen), and the variance of the brakes and starts into and out of the
     stands they showed. A gap whose model brakes to a stop by itself keeps all its time (the stand
     shown is the one it implies; the start after it is read from the speed after)."""
-    if g.v0 is not None and g.a0 * g.v0 < 0:
+    if braking(g):
         return t - g.t0, 0.0
-    open_s = max(0.0, g.stand[1] - max(g.stand[0], g.t0)) if g.stand is not None else 0.0
+    open_s = 0.0
+    if g.stand is not None:                            # (one not yet shown min_stand_s: held, from where it was)
+        open_s = max(0.0, g.stand[1] - max(g.stand[0] if g.confirmed else g.held_from, g.t0))
     return max(0.0, t - g.t0 - g.stood_s - open_s), g.edges_var
 
 
@@ -182,7 +190,7 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     # other end's speed, when the change is more than the speeds' own errors could make
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0
     ramped = abs(dv) >= p.ramp_dv_m_s
-    shown = g.stood_s > 0 or g.stand is not None
+    shown = (g.stood_s > 0 or g.stand is not None) and not braking(g)
     if shown and g.v0 * v1 >= 0 and abs(dv) < drive_rate(p) * T:
         # the frames showed it stand and drive again: between the stands it drove at the speed before
         # (the time it stood is not in T), and a change to the speed after came at the end, at the

@@ -229,6 +229,7 @@ class GapBridge:
 
     def _close_gap(self, est) -> float:
         g = self._gap
+        see_stand(self.p, g, None)    # measured again: a stand still shown ends (one too short is none)
         T = est.t_s - g.t0
         restarted, self._restarted = self._restarted, None
         if est.continuous and restarted is None:   # measured across the gap: the odometer's

@@ -65,6 +65,7 @@ class StandWatch:
         self._moves = 0               # changed frames in a row
         self._slow = 0                # ...of them slow ones
         self._stand_yardstick = None  # the yardstick the open stand was seen against
+        self._broken = False          # a dark or flattened frame since the last still one
 
     def unseen(self):
         """A dark or flattened frame: nothing to compare across it. What the drive changed frames by,
@@ -72,11 +73,14 @@ class StandWatch:
         the crawler did meanwhile is the gap bridge's (it counts a stand only up to its last still
         frame)."""
         self._seen.clear()
+        self._stills = self._moves = self._slow = 0
+        self._broken = True           # a stand's end is not dated across it
 
     def measured(self):
         """A frame measured: any stand is over, but what the motion changed the frames by (the drive
-        into the gap) stays the yardstick."""
-        self.since, self._stills, self._moves = None, 0, 0
+        into the gap) stays the yardstick. Nothing is compared across it."""
+        self.since, self._stills, self._moves, self._slow = None, 0, 0, 0
+        self._seen.clear()
 
     @property
     def stand(self) -> tuple | None:
@@ -116,7 +120,7 @@ class StandWatch:
         if yardstick is None and self.since is not None:
             yardstick = self._stand_yardstick     # the still picture coded anew, its texture changed
         if yardstick is None or change >= self.p.still * yardstick:
-            if self.since is not None and not self._moves:
+            if self.since is not None and not self._moves and not self._broken:
                 self.until = 0.5 * (t_prev + t_s)
             self._moves, self._stills = self._moves + 1, 0
             # a slow frame (a brake's) is a drive's only when it goes on: taken at once, a brake's
@@ -131,6 +135,7 @@ class StandWatch:
         if not self._stills:          # still since the frame `lag` before, not since the one before that
             self._from = 0.5 * (seen[max(0, len(seen) - 2 - self.p.lag)][0] + seen[-1 - self.p.lag][0])
         self._stills, self._moves, self._slow, self.until = self._stills + 1, 0, 0, t_s
+        self._broken = False
         if self.since is None and self._stills >= self.p.frames:
             self.since, self._stand_yardstick = self._from, yardstick
         return self.stand

@@ -140,18 +140,21 @@ def test_a_keyframe_that_codes_the_still_picture_anew_does_not_end_the_stand(rec
     assert all(seen[i] is not None and seen[i][0] == seen[stop + 5][0] for i in range(stop + 5, start))
 
 
-def test_a_dark_frame_inside_a_stand_does_not_end_it():
+def test_a_blackout_inside_a_stand_neither_ends_it_nor_times_its_end():
     pos, stop, start = brake_stand_go(stand=50)
     frames = frames_of(pos)
+    dark = range(start - 10, start + 10)            # an LED blackout; the crawler sets off inside it
     w, seen = StandWatch(), []
     for k, f in enumerate(frames):
-        if k in (stop + 20, stop + 21):
-            w.unseen()                              # an LED blackout: nothing compared across it
+        if k in dark:
+            w.unseen()                              # nothing compared across it
             seen.append(w.stand)
             continue
         seen.append(w.update(k / FPS, f))
-    assert all(seen[i] is not None and seen[i][0] == seen[stop + 5][0] for i in range(stop + 5, start))
-    assert seen[-1] is None                         # and it ends when the crawler sets off
+    assert all(seen[i] is not None and seen[i][0] == seen[stop + 5][0] for i in range(stop + 5, start - 10))
+    shown = [x for x in seen if x is not None][-1]
+    assert shown[1] * FPS <= start - 10             # it ended after its last still frame, unseen
+    assert seen[-1] is None                         # ...and the frames after show it drove
 
 
 def test_a_measured_frame_ends_a_stand_but_keeps_the_yardstick():
