@@ -65,10 +65,7 @@ class DenseShift:
         self.stands = StandWatch(self.p.stand)   # fed every frame here; reset by the odometer, not with the rest
         self.reset()
 
-    def reset(self, stands: bool = False):
-        """Forget the frames seen (and, with `stands`, what the stand watch saw: the odometer's reset)."""
-        if stands:
-            self.stands.reset()
+    def reset(self):
         self._mean = None             # the running mean of the recent frames: what stays put
         self._clip = None             # ...and of where they were clipped (None: nowhere lately)
         self._prev = None             # the last frame flat-fielded, and where it is clipped (None: nowhere)

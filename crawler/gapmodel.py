@@ -107,7 +107,7 @@ def _edge(p: BridgeParams, g: Gap, share: float):
     variance, making the stand's (2 x)^2."""
     v = abs(g.v0 or 0.0)
     quick, gentle = v / (2 * p.max_accel_m_s2), v / (2 * p.min_drive_accel_m_s2)
-    g.stood_s += 0.5 * (quick + gentle)
+    g.stood_s += v / (2 * drive_rate(p))
     g.edges_var += share * (v * (gentle - quick)) ** 2 / 12.0
 
 

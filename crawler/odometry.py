@@ -78,7 +78,8 @@ class Odometer:
         self._jv = 0.0
         self._unmeasured_since = None   # the first frame not measured since the last measurement
         self._after_dense = False  # the last measurement was dense: a new keyframe misses a frame's motion
-        self._dense.reset(stands=True)
+        self._dense.reset()
+        self._dense.stands.reset()
         self._speed = SpeedFilter(self.params.speed_window_s)
         self._spread = SpreadGate(self.params, self.m_per_px)
         self._blind_restart = False
