@@ -135,6 +135,11 @@ class AutoTilt(FixedTilt):
         return closed * change
 
     @property
+    def epoch_m(self) -> float:
+        """The signed metres of the epoch's steps: what a changed estimate re-measures."""
+        return sum(h.d for h in self.hops) + (self._last.d if self._last is not None else 0.0)
+
+    @property
     def distance_sigma_m(self) -> float:
         """The 1 sigma the tilt's uncertainty leaves in the epoch's steps: before the search has
         found it, their metres times the spread of the scale over the prior (the linear term is

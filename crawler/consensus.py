@@ -99,12 +99,12 @@ class SpeedFilter:
             self._add(*self._hist.popleft(), -1)
         return self.value()
 
-    def remeasured(self, gain_m: float):
-        """The distance gained gain_m from its steps measured again (a better tilt): the window's
-        samples gain it in proportion to what each had covered, so it is not read as speed."""
-        if not gain_m or len(self._hist) < 2 or self._hist[-1][1] == self._hist[0][1]:
+    def remeasured(self, gain_m: float, over_m: float = 0.0):
+        """The distance gained gain_m from its steps (over_m of them) measured again (a better
+        tilt): the window's samples gain it as motionfit.remeasured says, so it is not read as speed."""
+        if not gain_m or len(self._hist) < 2:
             return
-        hist, t0 = remeasured(list(self._hist), gain_m), self._t0
+        hist, t0 = remeasured(list(self._hist), gain_m, over_m), self._t0
         self.reset()
         self._t0 = t0
         for t, d in hist:

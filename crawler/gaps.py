@@ -38,7 +38,8 @@ from dataclasses import dataclass
 
 from .consensus import FadingMean, median
 from .gapmodel import BridgeParams, Gap, model_time, model_var, see_stand, set_off, settled_travel, stops, travel
-from .motionfit import ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured, slope as _slope
+from .motionfit import is_rescale as _is_rescale, ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured
+from .motionfit import slope as _slope
 
 
 @dataclass
@@ -115,7 +116,8 @@ class GapBridge:
         # back in time from t0: a ramp that began inside the window, after a cruise (a quadratic
         # over the window blurs a late brake). Only a brake is carried into the gap (it ends in a
         # stop); a crawler speeding up goes on at the speed seen, which the speed after settles.
-        # Distances measured again at a new tilt in the window have the re-measure's shape
+        # Distances a remount measured again in the window have the re-measure's shape; a refined
+        # tilt's plain scale (motionfit.is_rescale) is taken out of them, and the ramp is read
         v_back, a, sa = _ramp(ts, ds, self.p.min_history_s)
         rate = self._ramp_rate(a, sa)
         again = self._remeasured_at is not None and self._remeasured_at >= h[0][0]
@@ -158,6 +160,7 @@ class GapBridge:
 
     def _tracked(self, est) -> Bridged:
         gap_T, gain = 0.0, getattr(est, "rescaled_m", 0.0)      # (a plain estimate has no re-measure)
+        over = getattr(est, "rescaled_over_m", 0.0)
         if self._settling is not None and not est.continuous:
             # another fresh start while the last one settles: what was measured since that one
             # settles the gap (or, too short, reopens it); this frame's motion is unknown again
@@ -168,13 +171,14 @@ class GapBridge:
         if self._gap is not None and self._settling is None:
             gap_T = self._close_gap(est)
         elif self._settling is not None:
-            _remeasured(self._settling[1], gain)
+            _remeasured(self._settling[1], gain, over)
             self._settling[1].append((est.t_s, est.distance_m))
             if est.t_s - self._settling[0] >= self.p.settle_s:
                 self._settle_or_reopen()
-        if gain:                              # the motion model reads its speeds from the history;
-            self._hist = deque(_remeasured(list(self._hist), gain))
-            self._remeasured_at = est.t_s     # ...a new tilt's scale has the shape of a ramp
+        if gain:                              # the motion model reads its speeds from the history
+            self._hist = deque(_remeasured(list(self._hist), gain, over))
+            if not _is_rescale(gain, over):   # ...a remount's re-measure has the shape of a ramp
+                self._remeasured_at = est.t_s
         if self._kf_vision is None:
             self._kf_vision = est.distance_m
         self._track_jitter(est)

@@ -11,6 +11,9 @@ import math
 import numpy as np
 
 
+MAX_RESCALE = 0.01     # a re-measure up to this share of its metres is a plain scale (is_rescale)
+
+
 def slope(ts, ds) -> float | None:
     """Least-squares speed of distances ds at times ts (None: fewer than two times)."""
     n = len(ts)
@@ -73,11 +76,27 @@ def ramp_at(ts, ds, rate: float, k: float = 3.0, floor_m: float = 2e-5) -> float
     return v0 if cruise - rss > k * k * noise else None
 
 
-def remeasured(samples: list, gain_m: float):
+def remeasured(samples: list, gain_m: float, over_m: float = 0.0):
     """The odometer measured its steps again (a better tilt): (time, distance) samples a speed is
     read from (the speed filter's window, the speed after a gap) gain it too, in proportion to the
-    distance each had covered (a scale error), so that the correction is not read as speed."""
-    if gain_m and len(samples) > 1 and samples[-1][1] != samples[0][1]:
-        d0, span = samples[0][1], samples[-1][1] - samples[0][1]
+    distance each had covered (a scale error), so that the correction is not read as speed.
+    over_m: the signed metres the gain was spread over (tilt auto's epoch, crawler/autotilt.py),
+    so the newest sample gains all of it and one over_m before none; unknown (0), or a re-measure
+    too large for a plain scale (`is_rescale`), the samples' own span."""
+    if not gain_m or len(samples) < 2:
+        return samples
+    d_last = samples[-1][1]
+    if is_rescale(gain_m, over_m):
+        eps = gain_m / over_m
+        samples[:] = [(t, d + gain_m - eps * (d_last - d)) for t, d in samples]
+    elif d_last != samples[0][1]:
+        d0, span = samples[0][1], d_last - samples[0][1]
         samples[:] = [(t, d + gain_m * (d - d0) / span) for t, d in samples]
     return samples
+
+
+def is_rescale(gain_m: float, over_m: float) -> bool:
+    """A re-measure that only scales what was measured: a refined tilt moves the metres by a
+    fraction of a percent. A larger one (the search's first find, a remount after a camera turn,
+    whose steps lose their pose) changes the motion's shape, and no ramp is read across it."""
+    return over_m != 0.0 and abs(gain_m) <= MAX_RESCALE * abs(over_m)

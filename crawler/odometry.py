@@ -299,7 +299,7 @@ class Odometer:
     def _accept(self, img, t_s, c: Consensus, n_tracked: int) -> Estimate:
         p, kf, raw = self.params, self._kf, (c.step, c.lat)   # the tracks' own step: what guesses the next
         fix = self.pose.measure(kf, c, t_s)        # corrects c and kf.distance for the pose (crawler/pose.py)
-        self._speed.remeasured(fix.rescaled_m)     # a new tilt's scale (a refined last step: micrometres)
+        self._speed.remeasured(fix.rescaled_m, fix.rescaled_over_m)   # a new tilt's scale
         dt_prev = t_s - self._last_good_t
         delta = raw[0] - self._last_step
         if dt_prev > 0:
@@ -323,7 +323,7 @@ class Odometer:
         renew = (stay < max(p.min_tracks * p.renew_floor, p.renew_share * kf.n0)
                  or abs(c.step) / self.m_per_px > p.max_baseline_px)
         est = self._estimate(t_s, True, n_tracked, c.n_in, c.sigma, keyframe=False)
-        est.continuous, est.rescaled_m = not self._blind_restart, fix.rescaled_m
+        est.continuous, est.rescaled_m, est.rescaled_over_m = not self._blind_restart, fix.rescaled_m, fix.rescaled_over_m
         self._blind_restart, self._unmeasured_since, self._after_dense, self._resumed = False, None, False, False
         if fix.remount is not None:           # the pose estimate moved the tilt: a keyframe at the new one;
             self.remount(fix.remount)         # the speed the gates hold was measured at the old one

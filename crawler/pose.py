@@ -9,8 +9,7 @@ tilt and per metre of height or sway):
 - pitch moves every row by about the same number of pixels, whatever the wall's distance, where
   travel moves them by the wall metres the row sees: the row profile of the flow tells them apart
   (weakly: a half-frame ROI sees little depth range);
-- height scales the image about the point straight above the camera: it spreads the features
-  across the image, which travel does not (well seen);
+- height scales the image about the point above the camera: it spreads the features, travel does not;
 - sway (the car weaving across the pipe) shifts the view along the arc, and in a cylinder also
   bends it: the rays meet the curved wall at other depths, an axial pattern across the image that,
   left out, reads as pitch (at 40 deg 2 mm of sway put 0.2 deg of error in every pitch reading);
@@ -64,7 +63,8 @@ class PoseFix:
     lat_m: float = 0.0
     base_m: float = 0.0
     remount: object = None
-    rescaled_m: float = 0.0    # of base_m, what a changed tilt gave (the rest: the keyframe's pose refined)
+    rescaled_m: float = 0.0    # of base_m, what a changed tilt gave (the rest: the keyframe's pose refined),
+    rescaled_over_m: float = 0.0   # over this many metres of steps (the tilt's epoch)
 
 
 NO_FIX = PoseFix()
@@ -201,7 +201,7 @@ class PoseEstimator:
         if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
             self._forget()                         # its pitch and height were the tilt's error
         c.step, c.lat, kf.distance = c.step + step, c.lat + lat, kf.distance + base + extra
-        return PoseFix(step, lat, base + extra, remount, rescaled + extra)
+        return PoseFix(step, lat, base + extra, remount, rescaled + extra, self.tilt.epoch_m if rescaled + extra else 0.0)
 
     def _shutter(self, kf, idx, pts, t_s):
         """Each track's rolling-shutter factor: the frame interval over the time between the two

@@ -8,6 +8,7 @@ import pytest
 
 from crawler.gapmodel import Gap, model_time, see_stand, set_off, settled_travel
 from crawler.gaps import BridgeParams, GapBridge
+from crawler.motionfit import remeasured
 
 FPS = 30.0
 
@@ -379,23 +380,45 @@ def test_noise_on_a_constant_speed_is_not_read_as_a_brake_or_a_push():
     assert bridge._gap.a0 == 0.0
 
 
-def test_a_new_tilt_s_re_measure_keeps_the_brake_out_of_the_gap_and_only_that():
-    # tilt auto re-measures at a new scale (rescaled_m), whose shape reads as a ramp: no rate is
-    # read across it. Frames without one carry the brake into the gap
+def test_a_refined_tilt_scales_the_samples_as_the_whole_epoch_it_measured_again():
+    """A refined tilt re-measures the epoch's steps (metres of them), not the last window's: spread
+    over the window alone, 0.2 mm gained over 2 m read as 0.6 % more speed on a 0.1 s window."""
+    window = [(i / FPS, 2.0 + 0.3 * i / FPS) for i in range(4)]      # 0.3 m/s, the epoch began at 0 m
+    gain = 2.09 * 1e-4                                               # every metre 0.01 % longer
+    scaled = remeasured(list(window), gain, 2.09)
+    assert scaled[-1][1] == pytest.approx(window[-1][1] + gain, abs=1e-12)   # the newest: all of it
+    v = (scaled[-1][1] - scaled[0][1]) / (scaled[-1][0] - scaled[0][0])
+    assert v == pytest.approx(0.3 * 1.0001, rel=1e-9)                # the speed: the scale, no more
+    own = remeasured(list(window), gain)                             # the epoch unknown: the window's
+    assert (own[-1][1] - own[0][1]) / 0.1 == pytest.approx(0.3 + gain / 0.1, rel=1e-9)
+    assert remeasured(list(window), 0.05, 2.09) == remeasured(list(window), 0.05)   # 2.4 %: a remount's
+
+
+def test_a_remount_keeps_the_brake_out_of_the_gap_and_a_refined_tilt_does_not():
+    """A remount (the search's first find, a camera turned) measures the epoch again by percents,
+    and drops its steps' pose: that re-measure has a ramp's shape, so no rate is read across it.
+    A refined tilt only scales the epoch's steps (micrometres over metres): the history is scaled
+    with it and the brake is read. Tilt auto refines at every keyframe; reading none of them
+    carried all-at-once's brake-and-stop as a drive (+14.0 %, now -1.9 %; configured -1.3 %)."""
     def truth(t):                                        # as above: braking at 0.8 m/s^2 from 1.5 s
         return 0.4 * t if t < 1.5 else 0.6 + 0.4 * min(t - 1.5, 0.5) - 0.4 * min(t - 1.5, 0.5) ** 2
 
-    def run(rescaled):
-        bridge = GapBridge()
+    def run(rel, report_over=True):
+        bridge, scale = GapBridge(), 1.0
         for i, t in enumerate(np.arange(0, 3.4, 1 / FPS)):
-            e = est(t, truth(t), tracking=t < 1.8, keyframe=i % 10 == 0)
-            if rescaled and 1.6 < t < 1.8 and i % 3 == 0:
-                e.rescaled_m = 1e-5
+            rescale = rel and 1.6 < t < 1.8 and i % 3 == 0
+            e = est(t, truth(t) * scale * (1 + rel if rescale else 1), tracking=t < 1.8, keyframe=i % 10 == 0)
+            if rescale:                                  # every step so far measured again at a new scale
+                e.rescaled_m = truth(t) * scale * rel
+                e.rescaled_over_m = truth(t) * scale if report_over else 0.0
+                scale *= 1 + rel
             b = bridge.update(e)
-        return b.distance_m
+        return b.distance_m / scale
 
-    assert run(rescaled=False) == pytest.approx(truth(3.4), abs=0.01)   # stopped where it stopped
-    assert run(rescaled=True) > truth(3.4) + 0.05                       # the rate not read: carried on
+    assert run(0.0) == pytest.approx(truth(3.4), abs=0.01)         # stopped where it stopped
+    assert run(0.03) > truth(3.4) + 0.05                          # a remount: the rate not read
+    assert run(2e-4) == pytest.approx(truth(3.4), abs=0.01)        # a refined tilt: read
+    assert run(2e-4, report_over=False) > truth(3.4) + 0.05       # metres unknown: as a remount
 
 
 def test_a_frame_caught_between_two_gaps_gives_the_distance_not_a_brake():
