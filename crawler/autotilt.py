@@ -145,8 +145,7 @@ class AutoTilt(FixedTilt):
         found it, their metres times the spread of the scale over the prior (the linear term is
         nothing at 0 deg, where the scale is flat in the tilt); after, d(distance)/d(tilt) times sigma."""
         if self.track is None:
-            metres = sum(h.d for h in self.hops) + (self._last.d if self._last is not None else 0.0)
-            return abs(metres) * self._spread
+            return abs(self.epoch_m) * self._spread
         return abs(self._sensitivity) * self.sigma_rad
 
     def _scale_spread(self, sigma_deg: float) -> float:
