@@ -140,6 +140,13 @@ class AutoTilt(FixedTilt):
         return sum(h.d for h in self.hops) + (self._last.d if self._last is not None else 0.0)
 
     @property
+    def epoch(self) -> tuple[float, float | None]:
+        """(epoch_m, when the epoch's first step was measured): a gap bridged since then was carried
+        at the speeds its steps had, and scales with them when they are measured again (crawler/gaps.py)."""
+        first = self.hops[0] if self.hops else self._last
+        return self.epoch_m, None if first is None else first.t_s
+
+    @property
     def distance_sigma_m(self) -> float:
         """The 1 sigma the tilt's uncertainty leaves in the epoch's steps: before the search has
         found it, their metres times the spread of the scale over the prior (the linear term is

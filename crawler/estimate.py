@@ -31,7 +31,8 @@ class Estimate:
     continuous: bool = True           # False: a fresh start, the motion since the last tracked frame unknown
     rescaled_m: float = 0.0           # of distance_m, metres earlier steps gained when measured again at a
                                       # new tilt (crawler/autotilt.py): not motion of this frame
-    rescaled_over_m: float = 0.0      # ...spread over this many metres of steps before it (0: unknown)
+    rescaled_over_m: float = 0.0      # ...spread over this many metres of steps before it (0: unknown)...
+    rescaled_since_s: float | None = None   # ...measured since then (a gap bridged after it scales with them)
     since: tuple | None = None        # a fresh start whose motion is known from an earlier frame on (a dense
                                       # shift confirmed over several): that frame's (t_s, distance_m)
     scale_sigma_m: float = 0.0        # of distance_m, the 1 sigma a tilt (tilt auto) or a ride height
@@ -52,7 +53,7 @@ class Estimate:
 
     def as_dict(self) -> dict:
         d = dict(self.__dict__)
-        for k in ("rescaled_m", "rescaled_over_m", "since", "scale_sigma_m", "texture_dn", "pitch_m", "stand"):
+        for k in ("rescaled_m", "rescaled_over_m", "rescaled_since_s", "since", "scale_sigma_m", "texture_dn", "pitch_m", "stand"):
             del d[k]                  # internal: sigma_m holds what they say
         for k in ("distance_m", "lateral_m"):
             d[k] = round(d[k], 6)

@@ -49,6 +49,14 @@ class Gap:
     held_from: float = 0.0            # ...and the frame it was first shown at
     last_end: float | None = None     # where the last stand shown ended
     before_last: float = 0.0          # ...and the model's time up to its start
+    vis0: float = 0.0                 # the odometer's own distance at t0
+
+    def measured_again(self, scale: float, gain_before_m: float):
+        """Tilt auto measured the steps its speeds came from again (gaps.py): every speed and rate
+        scales, and the distance at its start gains what the steps before it did."""
+        self.v0 = None if self.v0 is None else self.v0 * scale
+        self.a0, self.sa, self.up = self.a0 * scale, self.sa * scale, self.up * scale
+        self.d0, self.vis0 = self.d0 + gain_before_m, self.vis0 + gain_before_m
 
 
 def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):

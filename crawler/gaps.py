@@ -74,6 +74,7 @@ class GapBridge:
         self._last2: list = []        # the last two measured (t, vision distance), for that
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
         self._remeasured_at = None    # when the odometer last measured its steps at a new tilt
+        self._carried: list = []      # [t0, t1, metres] of the gaps the model settled, newest last
 
     @property
     def sigma_m(self) -> float:
@@ -134,6 +135,34 @@ class GapBridge:
             return None
         return max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, a))
 
+    def _open_gap(self) -> Gap:
+        t0 = self._hist[-1][0]
+        g = Gap(t0, self._out_m, *self._motion_before(t0))
+        g.vis0 = self._out_m - self.offset_m
+        return g
+
+    def _measured_again(self, est, gain: float, over: float):
+        """Tilt auto measured its epoch's steps again at a better tilt (crawler/autotilt.py). A gap
+        inside the epoch was carried at the speeds its steps gave, at the old tilt: it scales as
+        the epoch did (a model whose speeds and rates all scale by s carries s times the metres).
+        One from before the epoch (the camera was turned since) keeps its metres. A search that
+        read the tilt off on the wet frames before a gap left the gap 7 % short (a lobe run)."""
+        since, old = getattr(est, "rescaled_since_s", None), over - gain
+        if since is None or abs(old) < _MIN_EPOCH_M or not 0.5 <= over / old <= 2.0:
+            return
+        scale, since = over / old, since - _TIME_EPS
+        for gap in self._carried:
+            if gap[0] >= since:
+                extra, gap[2] = gap[2] * (scale - 1.0), gap[2] * scale
+                self.offset_m += extra
+                self._hist = deque((t, d + extra if t >= gap[1] else d) for t, d in self._hist)
+        g = self._gap
+        if g is not None and g.t0 >= since:   # open or settling: its model, and what came before it
+            before = min(max((g.vis0 - (est.distance_m - over)) / old, 0.0), 1.0)
+            g.measured_again(scale, gain * before)
+        if self._settled_v is not None and self._settled_v[0] >= since:
+            self._settled_v = (self._settled_v[0], self._settled_v[1] * scale)
+
     # -- blind ----------------------------------------------------------------------------------------
 
     def _blind(self, est) -> Bridged:
@@ -143,8 +172,7 @@ class GapBridge:
         if self._gap is None:
             if not self._hist:            # never measured yet: nothing to carry
                 return Bridged(self._out_m, self.sigma_m, False, self.p.step_floor_m)
-            t0 = self._hist[-1][0]
-            self._gap = Gap(t0, self._out_m, *self._motion_before(t0))
+            self._gap = self._open_gap()
             self._gap_prev_var = 0.0
         g = self._gap
         see_stand(self.p, g, getattr(est, "stand", None))     # (a plain estimate shows none)
@@ -165,9 +193,10 @@ class GapBridge:
             # another fresh start while the last one settles: what was measured since that one
             # settles the gap (or, too short, reopens it); this frame's motion is unknown again
             self._settle_or_reopen()
+        if gain:                              # before the gap closes: its model is in the old metres
+            self._measured_again(est, gain, over)
         if self._gap is None and not est.continuous and self._hist:
-            t0 = self._hist[-1][0]            # a fresh start right after a measured frame: a gap of one
-            self._gap = Gap(t0, self._out_m, *self._motion_before(t0))
+            self._gap = self._open_gap()      # a fresh start right after a measured frame: a gap of one
         if self._gap is not None and self._settling is None:
             gap_T = self._close_gap(est)
         elif self._settling is not None:
@@ -245,6 +274,7 @@ class GapBridge:
             self._gap = None
             T_model, stands_var = model_time(g, restarted[0])
             self.var_gaps += model_var(self.p, T_model, g.v0, sa=g.sa) + stands_var
+            self._carry(g.t0, restarted[0], travel(self.p, g, T_model))
             self._hist.append((restarted[0], restarted[1] + self.offset_m))   # measured again: a speed
         else:                         # a fresh start: provisionally the model's, settled later
             samples = [(est.t_s, est.distance_m)]
@@ -295,6 +325,7 @@ class GapBridge:
         after = set_off(self.p, g, t1, v_end, a1)          # (a stand shown, a start seen after it)
         corrected, unseen_var = (after, 0.0) if after is not None else settled_travel(self.p, g, T, v_end, a1)
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
+        self._carry(g.t0, t1, corrected)
         self.offset_m += correction
         self._out_m += correction
         # the samples the speed after was read from are the history now, also those a reopened gap
@@ -306,6 +337,10 @@ class GapBridge:
         both = g.v0 is not None and not stopped
         self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var + stands_var
         self._gap = None
+
+    def _carry(self, t0: float, t1: float, metres: float):
+        self._carried.append([t0, t1, metres])
+        del self._carried[:-_MAX_CARRIED]
 
 
 def _before_a_hole(h: list, min_s: float) -> list:
@@ -323,3 +358,5 @@ def _before_a_hole(h: list, min_s: float) -> list:
 
 
 _TIME_EPS = 1e-6                  # frame times are sums of intervals: 3 / 30 s may come out under 0.1 s
+_MIN_EPOCH_M = 0.02               # an epoch's scale is read from its metres: over less, from their noise
+_MAX_CARRIED = 64                 # gaps remembered for that scale (tilt auto's epoch keeps 400 steps)

@@ -322,8 +322,8 @@ class Odometer:
         stay = int(np.count_nonzero(flow.within(ahead, *self._view_of(len(ahead)))))
         renew = (stay < max(p.min_tracks * p.renew_floor, p.renew_share * kf.n0)
                  or abs(c.step) / self.m_per_px > p.max_baseline_px)
-        est = self._estimate(t_s, True, n_tracked, c.n_in, c.sigma, keyframe=False)
-        est.continuous, est.rescaled_m, est.rescaled_over_m = not self._blind_restart, fix.rescaled_m, fix.rescaled_over_m
+        est = self._estimate(t_s, True, n_tracked, c.n_in, c.sigma, False, continuous=not self._blind_restart,
+                             rescaled_m=fix.rescaled_m, rescaled_over_m=fix.rescaled_over_m, rescaled_since_s=fix.rescaled_since_s)
         self._blind_restart, self._unmeasured_since, self._after_dense, self._resumed = False, None, False, False
         if fix.remount is not None:           # the pose estimate moved the tilt: a keyframe at the new one;
             self.remount(fix.remount)         # the speed the gates hold was measured at the old one
@@ -385,7 +385,7 @@ class Odometer:
             self._blind_restart = True        # the motion from the last tracked frame to here is unknown
         return self._estimate(t_s, False, n_tracked, 0, None, keyframe=renewed)
 
-    def _estimate(self, t_s, tracking, n_tracked, n_in, sigma, keyframe) -> Estimate:
+    def _estimate(self, t_s, tracking, n_tracked, n_in, sigma, keyframe, **more) -> Estimate:
         share = n_in / n_tracked if n_tracked else 0.0
         full = self.params.full_quality_tracks * self.params.min_tracks
         quality = share * min(1.0, n_in / full) if tracking else 0.0
@@ -397,4 +397,4 @@ class Odometer:
             tracking=tracking, quality=quality, tracks=n_tracked, inliers=n_in,
             spread_mm=None if sigma is None else sigma * 1000.0, keyframe=keyframe,
             scale_sigma_m=self.pose.scale_sigma_m, pitch_m=self.pose.pitch_shown_rad * self.m_per_px * self.camera.fy,
-            stand=None if tracking else self._dense.stands.stand)   # one the frames show (stands.py)
+            stand=None if tracking else self._dense.stands.stand, **more)   # a stand the frames show (stands.py)

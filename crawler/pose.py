@@ -64,7 +64,8 @@ class PoseFix:
     base_m: float = 0.0
     remount: object = None
     rescaled_m: float = 0.0    # of base_m, what a changed tilt gave (the rest: the keyframe's pose refined),
-    rescaled_over_m: float = 0.0   # over this many metres of steps (the tilt's epoch)
+    rescaled_over_m: float = 0.0   # over this many metres of steps (the tilt's epoch), measured since
+    rescaled_since_s: float | None = None
 
 
 NO_FIX = PoseFix()
@@ -75,6 +76,7 @@ class NullPose:
 
     active = False
     pitch_shown_rad = 0.0     # the car's pitch the tracks show: none read
+    scale_sigma_m = 0.0
 
     def __init__(self, tilt_deg: float | None = None):
         self.tilt_deg = tilt_deg
@@ -90,8 +92,6 @@ class NullPose:
 
     def frame(self) -> dict:
         return {}
-
-    scale_sigma_m = 0.0
 
     def checkpoint(self) -> dict:
         return {}
@@ -201,7 +201,7 @@ class PoseEstimator:
         if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
             self._forget()                         # its pitch and height were the tilt's error
         c.step, c.lat, kf.distance = c.step + step, c.lat + lat, kf.distance + base + extra
-        return PoseFix(step, lat, base + extra, remount, rescaled + extra, self.tilt.epoch_m if rescaled + extra else 0.0)
+        return PoseFix(step, lat, base + extra, remount, rescaled + extra, *(self.tilt.epoch if rescaled + extra else ()))
 
     def _shutter(self, kf, idx, pts, t_s):
         """Each track's rolling-shutter factor: the frame interval over the time between the two

@@ -421,6 +421,42 @@ def test_a_remount_keeps_the_brake_out_of_the_gap_and_a_refined_tilt_does_not():
     assert run(2e-4, report_over=False) > truth(3.4) + 0.05       # metres unknown: as a remount
 
 
+def test_a_gap_scales_with_the_epoch_its_speeds_came_from_and_not_with_a_later_one():
+    """Tilt auto read the tilt off before a gap (the wet frames under the highlight), so the gap was
+    carried at 85 % of the speed; a remount after it measures the epoch's steps again. The gap's
+    metres came from those steps and scale with them (a lobe run: -7.45 %, now -1.96 %). An epoch
+    that began after the gap (the camera turned since) leaves the gap as it was carried."""
+    v, k, t_fix = 0.3, 0.85, 5.0                 # measured at k of the truth until the remount at t_fix
+
+    def run(since_s):
+        bridge, vision, last, was_blind, b = GapBridge(), 0.0, 0.0, False, None
+        epoch0 = None                              # the odometer's distance when the epoch began
+        for i, t in enumerate(np.arange(0, 6.0, 1 / FPS)):
+            if 0.5 <= t < 4.3:
+                was_blind = True
+                b = bridge.update(est(t, vision, tracking=False))
+                continue
+            fresh, was_blind = was_blind, False
+            step = 0.0 if fresh or i == 0 else v / FPS * (k if t < t_fix else 1.0)
+            vision += step
+            if epoch0 is None and t >= since_s:
+                epoch0 = vision - step
+            e = est(t, vision, continuous=not fresh, keyframe=fresh or i % 10 == 0)
+            if t_fix <= t < t_fix + 0.5 / FPS:     # the remount: every step of the epoch at the new tilt
+                old = vision - epoch0
+                e.rescaled_m, e.rescaled_over_m, e.rescaled_since_s = old * (1 / k - 1), old / k, since_s
+                vision += e.rescaled_m
+                e.distance_m = vision
+            b = bridge.update(e)
+            last = t
+        return b.distance_m, v * last
+
+    scaled, true = run(since_s=0.0)
+    assert scaled == pytest.approx(true, abs=0.01)       # carried at 0.255 m/s: 0.17 m short without
+    kept, _ = run(since_s=4.5)
+    assert kept == pytest.approx(true - (1 - k) * v * 4.5, abs=0.01)   # all before 4.5 s as measured
+
+
 def test_a_frame_caught_between_two_gaps_gives_the_distance_not_a_brake():
     """At a wet stretch's edge the camera lost a frame, measured one across it 2.6 mm short (the
     highlight's pull) and lost the rest. Fitted with the frames before, that one frame read a brake

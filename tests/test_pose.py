@@ -535,12 +535,13 @@ def test_a_step_measured_again_at_the_found_tilt_reads_its_tracks_as_the_odomete
     tilt = AutoTilt(cam, old, roi)
     tilt.track = TiltTrack(math.radians(40.0), sigma=math.radians(0.1))
     tilt.tau = math.radians(40.0)
-    hop = Hop(0.0, old, xy_k, xy_c, dy, (0.0, 0.0, 0.0, 0.0), float(np.mean(dy)), 0.0)
+    hop = Hop(0.7, old, xy_k, xy_c, dy, (0.0, 0.0, 0.0, 0.0), float(np.mean(dy)), 0.0)
     tilt.hops = [hop]
     new, extra = tilt.remount()
     assert new is not None and abs(new.mount.tilt_deg - 40.0) < 1e-9
     assert abs(hop.d - 0.01) < 1e-6                    # the plain mean: 0.0102
     assert abs(hop.d - float(np.mean(dy)) - extra) < 1e-12
+    assert tilt.epoch == (hop.d, 0.7)                  # a gap bridged since 0.7 s scales with it (gaps.py)
 
 
 def test_the_pitch_a_car_shows_beyond_the_configured_is_said_in_sigma():
