@@ -49,6 +49,7 @@ class Gap:
     held_from: float = 0.0            # ...and the frame it was first shown at
     last_end: float | None = None     # where the last stand shown ended
     before_last: float = 0.0          # ...and the model's time up to its start
+    edge_s: float = 0.0               # the time a brake or start is taken to stand (_edge)
     vis0: float = 0.0                 # the odometer's own distance at t0
 
     def measured_again(self, scale: float, gain_before_m: float):
@@ -89,9 +90,12 @@ def set_off(p: BridgeParams, g: Gap, t1: float, v1: float, a1: float) -> float |
     at a1) set off from rest v1 / a1 before: the gap's distance is the model's up to that stand and
     the ramp since (the model carried the speed before the gap after it, which a gap that opened
     during a brake had low). None: no stand ended in the gap, it is not seen speeding up, or the
-    ramp did not begin as the stand ended (within 0.1 s: the end is seen a frame or two late)."""
-    if g.last_end is None or g.stand is not None or not a1 or a1 * v1 <= 0 or braking(g):
+    ramp did not begin as the stand ended (within 0.1 s: the end is seen a frame or two late). A
+    speed at t1 against the ramp, within 0.1 s of rate of none, is a crawler that sets off just then."""
+    if g.last_end is None or g.stand is not None or not a1 or braking(g):
         return None
+    if a1 * v1 <= 0:
+        return travel(p, g, g.before_last) if abs(v1) <= 0.1 * abs(a1) and t1 - g.last_end <= 0.1 else None
     if abs(t1 - abs(v1 / a1) - g.last_end) > 0.1:     # it set off as the stand ended, not long after
         return None
     return travel(p, g, g.before_last) + math.copysign(v1 * v1 / (2 * abs(a1)), v1)
@@ -115,7 +119,8 @@ def _edge(p: BridgeParams, g: Gap, share: float):
     variance, making the stand's (2 x)^2."""
     v = abs(g.v0 or 0.0)
     quick, gentle = v / (2 * p.max_accel_m_s2), v / (2 * p.min_drive_accel_m_s2)
-    g.stood_s += v / (2 * drive_rate(p))
+    g.edge_s = v / (2 * drive_rate(p))
+    g.stood_s += g.edge_s
     g.edges_var += share * (v * (gentle - quick)) ** 2 / 12.0
 
 
@@ -124,13 +129,20 @@ def model_time(g: Gap, t: float) -> tuple[float, float]:
     frames did not show the crawler standing (a stand still open counts up to its last still frame:
     what came after it is not seen), and the variance of the brakes and starts into and out of the
     stands they showed. A gap whose model brakes to a stop by itself keeps all its time (the stand
-    shown is the one it implies; the start after it is read from the speed after)."""
+    shown is the one it implies; the start after it is read from the speed after). After a stand
+    the clock goes on once the start's own time is over, and never takes back the time before the
+    stand: a wall seen again, or frames moving again, within it are the start's (counted from
+    the stand's end at once, a start of 0.1 s took 12 mm back from a crawler at 0.1 m/s)."""
     if braking(g):
         return t - g.t0, 0.0
+    if g.stand is not None and g.confirmed:            # frames past its last still one: the start's
+        before = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s)
+        return before + max(0.0, t - g.stand[1] - g.edge_s), g.edges_var
     open_s = 0.0
     if g.stand is not None:                            # (one not yet shown min_stand_s: held, from where it was)
-        open_s = max(0.0, g.stand[1] - max(g.stand[0] if g.confirmed else g.held_from, g.t0))
-    return max(0.0, t - g.t0 - g.stood_s - open_s), g.edges_var
+        open_s = max(0.0, g.stand[1] - max(g.held_from, g.t0))
+    T = max(0.0, t - g.t0 - g.stood_s - open_s)
+    return (T if g.last_end is None else max(T, g.before_last)), g.edges_var
 
 
 def travel(p: BridgeParams, g: Gap, T: float) -> float:

@@ -560,8 +560,42 @@ def test_a_stand_still_open_when_the_wall_is_measured_again_counts_up_to_its_las
     g = Gap(0.0, 0.0, v, 0.0)
     see_stand(p, g, (2.0, 2.9))           # shown from 2 s, last still frame at 2.9 s
     T, var = model_time(g, 3.2)           # measured again at 3.2 s, the stand not yet seen to end
-    assert T == pytest.approx(3.2 - 0.9 - 0.125)     # its brake counted, its last 0.3 s driven
+    assert T == pytest.approx(3.2 - 0.9 - 2 * 0.125)   # its brake and its start counted, the rest driven
     assert var == pytest.approx(g.edges_var) and var > 0
+
+
+def test_the_model_s_clock_never_runs_back_across_a_stand_s_end_or_its_start():
+    """Frames moving past a stand's last still one are its start's (counted once, whether or not the
+    stand has been seen to end); the wall seen again within the start takes no time from before
+    the stand. (Once, when the stand is confirmed, it does step back: to where the stand began.) Counted at the stand's end only, the clock ran on at the first moving frame and back
+    by the start's time when the end was seen (a stop run: the distance fell 6 mm), and a wall seen
+    again at once gave the gap no travel at all before the stand (-7.5 mm)."""
+    p, v = BridgeParams(), 0.1
+    g = Gap(0.0, 0.0, v, 0.0)
+    clock = []
+    for t in np.arange(0.0, 4.0, 1 / FPS):
+        shown = (2.0, min(t, 2.9)) if 2.0 + 2 / FPS <= t < 3.05 else None   # ends (4 frames moving) at 3.05 s
+        see_stand(p, g, shown)
+        if g.confirmed or clock:          # (confirmed at 2.5 s)
+            clock.append(model_time(g, t)[0])
+    assert all(b >= a - 1e-12 for a, b in zip(clock, clock[1:]))
+    before = 2.0 - 0.125                  # driven up to the stand, its brake counted
+    assert model_time(g, 2.95)[0] == pytest.approx(before)      # inside the start: nothing more
+    assert model_time(g, 3.5)[0] == pytest.approx(before + 3.5 - 2.9 - 0.125)
+
+
+def test_a_wall_seen_again_as_the_crawler_sets_off_from_a_stand_shown_puts_it_where_it_stood():
+    """Seen again just as it set off, the speed read at that frame is the fit's noise about none (a
+    stop run: -0.019 m/s at 0.57 m/s^2); the gap ends where the crawler stood, not at a trapezoid
+    from the speed before (-8.6 mm at 0.1 m/s, all of it after the stand was measured exactly)."""
+    p, v = BridgeParams(), 0.1
+    g = Gap(0.0, 0.0, v, 0.0)
+    for t in np.arange(0.0, 3.1, 1 / FPS):
+        see_stand(p, g, (1.0, min(t, 3.0)) if 1.1 <= t < 3.05 else None)
+    stood_at = v * (1.0 - 0.125)
+    assert set_off(p, g, 3.02, -0.019, 0.57) == pytest.approx(stood_at)
+    assert set_off(p, g, 3.02, -0.2, 0.57) is None            # moving the other way: no start from it
+    assert set_off(p, g, 3.3, -0.019, 0.57) is None           # seen long after it stood
 
 
 def test_a_gap_with_stands_shown_drove_at_the_speed_before_between_them_and_changed_at_its_end():

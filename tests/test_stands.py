@@ -59,10 +59,13 @@ def test_a_crawler_that_stops_on_a_faint_wall_is_seen_to_stand_from_its_stop_to_
     stood = [k for k, s in enumerate(seen) if s is not None]
     assert stood, "no stand seen"
     since, until = seen[stood[-1] - 1]
-    # the stand is known within the brake and the start (the slowest of their frames change the
-    # picture as little as the noise does), and nowhere while the wall moved
-    assert stop - ramp <= since * FPS <= stop
-    assert start <= until * FPS <= start + ramp
+    # the stand is known within a quarter of the brake and of the start: the slowest of their frames
+    # change the picture as little as a stand does, and it is said from half the comparison's span
+    # inside them (it stood from frame stop - 1, it moved from frame start); nowhere while it moved.
+    # Said where the frames first and last looked still, it began 1.5-3.5 frames early and ended
+    # as late, and the bridge, which adds the brake and the start itself, lost 7 mm a stand at 0.1 m/s
+    assert stop - 1 - ramp / 4 <= since * FPS <= stop
+    assert start - 1 <= until * FPS <= start + ramp / 4
     assert min(stood) > stop - ramp and max(stood) <= start + ramp + 4
     assert min(stood) <= stop + 4               # said from the third still frame on
 
