@@ -30,6 +30,7 @@ class BridgeParams:
     jitter_memory: float = 0.05       # weight of each frame in the running jitter estimate (~1 s at 30 fps)
     min_drive_accel_m_s2: float = 0.25   # the gentlest brake or start into or out of a stand the video showed
     min_stand_s: float = 0.5          # a stand shown for less is none (the encoder copied a moving wall)
+    shown_end_sigma_s: float = 0.05   # ...and one's end is known this well (stands.py: within a frame or two)
 
 
 @dataclass
@@ -51,12 +52,16 @@ class Gap:
     before_last: float = 0.0          # ...and the model's time up to its start
     edge_s: float = 0.0               # the time a brake or start is taken to stand (_edge)
     vis0: float = 0.0                 # the odometer's own distance at t0
+    cruise: float | None = None       # the last steady speed measured before it (gaps.py)
+    resumed: tuple | None = None      # (model time, speed): after a stand shown, it drove on at that speed
 
     def measured_again(self, scale: float, gain_before_m: float):
         """Tilt auto measured the steps its speeds came from again (gaps.py): every speed and rate
         scales, and the distance at its start gains what the steps before it did."""
         self.v0 = None if self.v0 is None else self.v0 * scale
         self.a0, self.sa, self.up = self.a0 * scale, self.sa * scale, self.up * scale
+        self.cruise = None if self.cruise is None else self.cruise * scale
+        self.resumed = None if self.resumed is None else (self.resumed[0], self.resumed[1] * scale)
         self.d0, self.vis0 = self.d0 + gain_before_m, self.vis0 + gain_before_m
 
 
@@ -67,14 +72,19 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
     to begin v / 2a earlier, and to end as much later for the start out of it. The rate is not seen:
     anything from min_drive_accel_m_s2 to max_accel_m_s2, so the middle, with its uniform variance.
     A stand shown for less than min_stand_s is none: an encoder that stopped coding a faint wall
-    for a moment copied it while the crawler drove on (a lobe run: -0.03 -> -12.4 %). Until then
+    for a moment copied it while the crawler drove on (a lobe run: -0.03 -> -12.4 %); but in a gap
+    whose model brakes to a stop, its end says when the crawler set off (settled_travel). Until then
     the model holds (its clock stops, nothing is taken back); from then the stand and its brake
     count, and the distance steps back by what the brake was worth."""
     if g.stand is not None and (stand is None or stand[0] != g.stand[0]):   # it ended
         if g.confirmed:                                # the start out of it
             g.before_last, g.last_end = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s), g.stand[1]
+            if g.resumed is None and g.v0 is not None and not braking(g):
+                g.resumed = (g.before_last, speed_after_stand(g))
             g.stood_s += g.stand[1] - max(g.stand[0], g.t0)
             _edge(p, g, 3.0)
+        elif braking(g):                               # the stop it implies, shown: when it set off
+            g.last_end = g.stand[1]
         g.stand, g.confirmed = None, False
     if stand is not None:
         if g.stand is None:
@@ -83,6 +93,21 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
         if not g.confirmed and stand[1] - max(stand[0], g.t0) >= p.min_stand_s:
             g.confirmed = True                         # the brake into it
             _edge(p, g, 1.0)
+
+
+def speed_after_stand(g: Gap) -> float:
+    """The speed a crawler sets off to after a stand the frames showed: its drive's cruise, the last
+    steady speed measured before the gap, where the gap opened slower the same way (a brake that no
+    fit read, or a speed read over a moment: a stop run on another seed opened one at 0.062 m/s
+    from three frames of a brake, and carried the crawler at that after the stand where it drove
+    0.1: -25 mm); else the speed before it."""
+    c, v = g.cruise, g.v0
+    return c if c is not None and v is not None and c * v > 0 and abs(c) > abs(v) else v
+
+
+def moving_speed(g: Gap) -> float:
+    """The speed the model carries the crawler at now: the speed before the gap, or after a stand."""
+    return g.v0 if g.resumed is None else g.resumed[1]
 
 
 def set_off(p: BridgeParams, g: Gap, t1: float, v1: float, a1: float) -> float | None:
@@ -117,10 +142,11 @@ def _edge(p: BridgeParams, g: Gap, share: float):
     """One brake or start: half its time as stood, the rate's range as variance. One drive brakes and
     sets off alike, so a stand's two are one error twice: the start adds three times the brake's
     variance, making the stand's (2 x)^2."""
-    v = abs(g.v0 or 0.0)
+    v = abs(moving_speed(g) or 0.0)
     quick, gentle = v / (2 * p.max_accel_m_s2), v / (2 * p.min_drive_accel_m_s2)
-    g.edge_s = v / (2 * drive_rate(p))
-    g.stood_s += g.edge_s
+    g.stood_s += v / (2 * drive_rate(p))
+    after = g.resumed[1] if g.resumed is not None else speed_after_stand(g)
+    g.edge_s = abs(after or 0.0) / (2 * drive_rate(p))    # the start out of it: the clock waits for it
     g.edges_var += share * (v * (gentle - quick)) ** 2 / 12.0
 
 
@@ -153,8 +179,14 @@ def travel(p: BridgeParams, g: Gap, T: float) -> float:
     m, v0, a = p.max_bridge_s, g.v0, g.a0
     if a and v0 * a < 0 and -v0 / a < T:          # braking: stops inside the gap
         return -0.5 * v0 * v0 / a
-    T_eff = T if T <= m else m + (T - m) * max(0.0, 1 - (T - m) / m) / 2
-    return v0 * T_eff + 0.5 * a * min(T, m) ** 2
+
+    def faded(T):
+        return T if T <= m else m + (T - m) * max(0.0, 1 - (T - m) / m) / 2
+
+    if g.resumed is not None and T > g.resumed[0]:   # after a stand shown: on at the speed it set off to
+        T0, v = g.resumed
+        return v0 * faded(T0) + v * (faded(T) - faded(T0))
+    return v0 * faded(T) + 0.5 * a * min(T, m) ** 2
 
 
 def stops(g: Gap, T: float) -> float | None:
@@ -198,8 +230,15 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     if stop is not None and abs(v1) > p.speed_sigma_m_s:
         # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
         # How long it stood is not in the video: anything from not at all to all the time left,
-        # so the middle, with that range's uniform variance
+        # so the middle, with that range's uniform variance; unless the frames showed the stand
+        # end (crawler/stands.py): then it set off then (a stop run on another seed: +32 mm when
+        # the middle was taken for a start the frames had shown 0.6 s later)
         a = abs(g.a0)
+        shown = g.last_end - g.t0 if g.last_end is not None and g.stand is None else None
+        if shown is not None and stop <= shown <= T:
+            ramp = min(abs(v1) / a, T - shown)
+            moved = 0.5 * a * ramp * ramp + abs(v1) * (T - shown - ramp)
+            return travel(p, g, T) + math.copysign(moved, v1), (v1 * p.shown_end_sigma_s) ** 2
         ramp = min(abs(v1) / a, T - stop)
         longest = T - stop - ramp         # the longest it can have stood
         moved = 0.5 * a * ramp * ramp + abs(v1) * longest / 2
@@ -211,11 +250,13 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0
     ramped = abs(dv) >= p.ramp_dv_m_s
     shown = (g.stood_s > 0 or g.stand is not None) and not braking(g)
-    if shown and g.v0 * v1 >= 0 and abs(dv) < drive_rate(p) * T:
+    dv_run = v1 - moving_speed(g)
+    if shown and moving_speed(g) * v1 >= 0 and abs(dv_run) < drive_rate(p) * T:
         # the frames showed it stand and drive again: between the stands it drove at the speed before
-        # (the time it stood is not in T), and a change to the speed after came at the end, at the
-        # drive's rate (the trapezoid spread a brake measured as the wall came back over the gap)
-        guess = g.v0 * T + 0.5 * dv * abs(dv) / drive_rate(p)
+        # (after one, at the speed it set off to; the time it stood is not in T), and a change to the
+        # speed after came at the end, at the drive's rate (the trapezoid spread a brake measured as
+        # the wall came back over the gap)
+        guess = travel(p, g, T) + 0.5 * dv_run * abs(dv_run) / drive_rate(p)
     elif ramped and g.up and g.v0 * v1 > 0 and 0 < gain < g.up * T:     # speeding up into it, then cruising
         guess = math.copysign(abs(g.v0) * T + gain * (T - 0.5 * gain / g.up), v1)
     elif ramped and a1 and dv * a1 > 0 and abs(dv) < abs(a1) * T:   # cruising, then the ramp seen after it

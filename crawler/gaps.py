@@ -75,6 +75,7 @@ class GapBridge:
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
         self._remeasured_at = None    # when the odometer last measured its steps at a new tilt
         self._carried: list = []      # [t0, t1, metres] of the gaps the model settled, newest last
+        self._cruise = (None, None)   # (since, speed) of the odometer's speed held steady, and the last such
 
     @property
     def sigma_m(self) -> float:
@@ -138,7 +139,7 @@ class GapBridge:
     def _open_gap(self) -> Gap:
         t0 = self._hist[-1][0]
         g = Gap(t0, self._out_m, *self._motion_before(t0))
-        g.vis0 = self._out_m - self.offset_m
+        g.vis0, g.cruise = self._out_m - self.offset_m, self._cruise[1]
         return g
 
     def _measured_again(self, est, gain: float, over: float):
@@ -162,6 +163,8 @@ class GapBridge:
             g.measured_again(scale, gain * before)
         if self._settled_v is not None and self._settled_v[0] >= since:
             self._settled_v = (self._settled_v[0], self._settled_v[1] * scale)
+        if self._cruise[1] is not None:               # (read lately: inside the epoch)
+            self._cruise = (None, self._cruise[1] * scale)
 
     # -- blind ----------------------------------------------------------------------------------------
 
@@ -211,6 +214,7 @@ class GapBridge:
         if self._kf_vision is None:
             self._kf_vision = est.distance_m
         self._track_jitter(est)
+        self._track_cruise(est)
         self._pitch_m = getattr(est, "pitch_m", 0.0)    # (a plain estimate has none)
         step_var = self._step_var(est)
         if est.keyframe:              # the keyframe's step is closed: its error is carried from now on
@@ -250,6 +254,17 @@ class GapBridge:
         resid2 = (d2 - d1 - (d1 - d0) * r) ** 2 / (1 + (1 + r) ** 2 + r * r)
         v = self._jitter.value
         self._jitter.add(min(resid2, 9 * v) if v > 0 else resid2)    # one bad frame does not set the level
+
+    def _track_cruise(self, est):
+        """The drive's cruise: the odometer's speed, held within 5 % (or 1 cm/s) for history_s. A
+        crawler that stood inside a gap sets off to it (gapmodel.speed_after_stand)."""
+        v, (since, cruise) = est.speed_m_s, self._cruise
+        if v is None or not est.continuous or abs(v) < _MIN_CRUISE_M_S:
+            self._cruise = (None, cruise)
+        elif since is None or abs(v - since[1]) > max(0.01, 0.05 * abs(since[1])):
+            self._cruise = ((est.t_s, v), cruise)
+        elif est.t_s - since[0] >= self.p.history_s:
+            self._cruise = (since, v)
 
     def _frame_noise(self, est) -> float:
         spread = (est.spread_mm or 0.0) / 1000.0
@@ -360,3 +375,4 @@ def _before_a_hole(h: list, min_s: float) -> list:
 _TIME_EPS = 1e-6                  # frame times are sums of intervals: 3 / 30 s may come out under 0.1 s
 _MIN_EPOCH_M = 0.02               # an epoch's scale is read from its metres: over less, from their noise
 _MAX_CARRIED = 64                 # gaps remembered for that scale (tilt auto's epoch keeps 400 steps)
+_MIN_CRUISE_M_S = 0.02            # a speed below this is a crawl or a stand's noise, no cruise
