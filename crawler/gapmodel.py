@@ -50,7 +50,7 @@ class Gap:
     held_from: float = 0.0            # ...and the frame it was first shown at
     last_end: float | None = None     # where the last stand shown ended
     before_last: float = 0.0          # ...and the model's time up to its start
-    edge_s: float = 0.0               # the time a brake or start is taken to stand (_edge)
+    edge_s: float = 0.0               # half the time of the start out of the stand shown (_edge)
     vis0: float = 0.0                 # the odometer's own distance at t0
     cruise: float | None = None       # the last steady speed measured before it (gaps.py)
     resumed: tuple | None = None      # (model time, speed): after a stand shown, it drove on at that speed
@@ -78,13 +78,17 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
     count, and the distance steps back by what the brake was worth."""
     if g.stand is not None and (stand is None or stand[0] != g.stand[0]):   # it ended
         if g.confirmed:                                # the start out of it
-            g.before_last, g.last_end = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s), g.stand[1]
+            before = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s)
+            g.before_last, g.last_end = max(before, g.before_last), g.stand[1]   # (one inside the last's start)
             if g.resumed is None and g.v0 is not None and not braking(g):
                 g.resumed = (g.before_last, speed_after_stand(g))
             g.stood_s += g.stand[1] - max(g.stand[0], g.t0)
             _edge(p, g, 3.0)
-        elif braking(g):                               # the stop it implies, shown: when it set off
-            g.last_end = g.stand[1]
+        if braking(g):                                 # the stop it implies, shown: it set off then,
+            g.last_end = g.stand[1]                    # and drove on at its cruise (travel)
+            if g.resumed is None:
+                v = speed_after_stand(g)
+                g.resumed = (g.last_end - g.t0 + abs(v) / (2 * drive_rate(p)), v)
         g.stand, g.confirmed = None, False
     if stand is not None:
         if g.stand is None:
@@ -158,11 +162,13 @@ def model_time(g: Gap, t: float) -> tuple[float, float]:
     shown is the one it implies; the start after it is read from the speed after). After a stand
     the clock goes on once the start's own time is over, and never takes back the time before the
     stand: a wall seen again, or frames moving again, within it are the start's (counted from
-    the stand's end at once, a start of 0.1 s took 12 mm back from a crawler at 0.1 m/s)."""
+    the stand's end at once, a start of 0.1 s took 12 mm back from a crawler at 0.1 m/s), nor does a
+    stand shown inside the last one's start. (The one step back is a stand's confirmation: to where
+    it began, see_stand.)"""
     if braking(g):
         return t - g.t0, 0.0
     if g.stand is not None and g.confirmed:            # frames past its last still one: the start's
-        before = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s)
+        before = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s, g.before_last)
         return before + max(0.0, t - g.stand[1] - g.edge_s), g.edges_var
     open_s = 0.0
     if g.stand is not None:                            # (one not yet shown min_stand_s: held, from where it was)
@@ -172,16 +178,19 @@ def model_time(g: Gap, t: float) -> tuple[float, float]:
 
 
 def travel(p: BridgeParams, g: Gap, T: float) -> float:
-    """Distance over T at the speed and acceleration before the gap; a crawler that was braking
-    stops (it does not reverse); beyond max_bridge_s the speed fades out."""
+    """Distance over T at the speed and acceleration before the gap, and after a stand the frames
+    showed at the speed it set off to (`resumed`); a crawler that was braking stops (it does not
+    reverse); beyond max_bridge_s the speed fades to nothing over as long again."""
     if g.v0 is None:
         return 0.0
     m, v0, a = p.max_bridge_s, g.v0, g.a0
-    if a and v0 * a < 0 and -v0 / a < T:          # braking: stops inside the gap
-        return -0.5 * v0 * v0 / a
+    if a and v0 * a < 0 and -v0 / a < T:          # braking: stops inside the gap (and sets off after a
+        braked = -0.5 * v0 * v0 / a               # stand the frames showed end)
+        return braked if g.resumed is None else braked + g.resumed[1] * max(0.0, T - g.resumed[0])
 
-    def faded(T):
-        return T if T <= m else m + (T - m) * max(0.0, 1 - (T - m) / m) / 2
+    def faded(T):                                  # (the speed falls linearly from m to 2 m: never back)
+        x = min(max(T - m, 0.0), m)
+        return min(T, m) + x - x * x / (2 * m)
 
     if g.resumed is not None and T > g.resumed[0]:   # after a stand shown: on at the speed it set off to
         T0, v = g.resumed
@@ -224,9 +233,16 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     if g.v0 is None:                      # a run that started blind: the speed after, constant
         return v1 * T, 0.0
     stop = stops(g, T)
+    braked = None if stop is None else -0.5 * g.v0 * g.v0 / g.a0
+    shown = g.last_end - g.t0 if g.last_end is not None and g.stand is None else None
+    shown = shown if shown is not None and stop is not None and stop <= shown <= T else None
     if stop is not None and abs(v1) > p.speed_sigma_m_s and a1 * v1 > 0 and T - v1 / a1 >= stop:
-        # braked to a stop, still speeding up when seen again: it started from rest v1 / a1 before
-        return travel(p, g, T) + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
+        # braked to a stop, still speeding up when seen again: it started from rest v1 / a1 before,
+        # or where the frames showed its stand end, if a drive gets to v1 from there by then (the
+        # fitted rate of a start seen for a few frames is rough: 0.30 m/s^2 where it was 0.5)
+        if shown is not None and abs(v1) >= p.min_drive_accel_m_s2 * (T - shown):
+            return braked + math.copysign(0.5 * abs(v1) * (T - shown), v1), (0.5 * v1 * p.shown_end_sigma_s) ** 2
+        return braked + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
     if stop is not None and abs(v1) > p.speed_sigma_m_s:
         # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
         # How long it stood is not in the video: anything from not at all to all the time left,
@@ -234,17 +250,16 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
         # end (crawler/stands.py): then it set off then (a stop run on another seed: +32 mm when
         # the middle was taken for a start the frames had shown 0.6 s later)
         a = abs(g.a0)
-        shown = g.last_end - g.t0 if g.last_end is not None and g.stand is None else None
-        if shown is not None and stop <= shown <= T:
+        if shown is not None:
             ramp = min(abs(v1) / a, T - shown)
             moved = 0.5 * a * ramp * ramp + abs(v1) * (T - shown - ramp)
-            return travel(p, g, T) + math.copysign(moved, v1), (v1 * p.shown_end_sigma_s) ** 2
+            return braked + math.copysign(moved, v1), (v1 * p.shown_end_sigma_s) ** 2
         ramp = min(abs(v1) / a, T - stop)
         longest = T - stop - ramp         # the longest it can have stood
         moved = 0.5 * a * ramp * ramp + abs(v1) * longest / 2
-        return travel(p, g, T) + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
+        return braked + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
     if stop is not None:
-        return travel(p, g, T), 0.0    # stopped, and still stopped
+        return braked, 0.0             # stopped, and still stopped
     # a constant acceleration over the gap; but a ramp seen at one end goes on at its rate to the
     # other end's speed, when the change is more than the speeds' own errors could make
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0

@@ -37,7 +37,8 @@ from collections import deque
 from dataclasses import dataclass
 
 from .consensus import FadingMean, median
-from .gapmodel import BridgeParams, Gap, model_time, model_var, see_stand, set_off, settled_travel, stops, travel
+from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, see_stand, set_off, settled_travel,
+                       stops, travel)
 from .motionfit import is_rescale as _is_rescale, ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured
 from .motionfit import slope as _slope
 
@@ -75,7 +76,8 @@ class GapBridge:
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
         self._remeasured_at = None    # when the odometer last measured its steps at a new tilt
         self._carried: list = []      # [t0, t1, metres] of the gaps the model settled, newest last
-        self._cruise = (None, None)   # (since, speed) of the odometer's speed held steady, and the last such
+        self._cruise = (None, None)   # ((since, speed) of the odometer's speed held steady, (t, speed) of the
+                                      # last one held for history_s)
 
     @property
     def sigma_m(self) -> float:
@@ -139,7 +141,9 @@ class GapBridge:
     def _open_gap(self) -> Gap:
         t0 = self._hist[-1][0]
         g = Gap(t0, self._out_m, *self._motion_before(t0))
-        g.vis0, g.cruise = self._out_m - self.offset_m, self._cruise[1]
+        cruise = self._cruise[1]           # (t, speed): one older than the model's horizon is no guide
+        g.vis0 = self._out_m - self.offset_m
+        g.cruise = cruise[1] if cruise is not None and cruise[0] >= t0 - self.p.max_bridge_s else None
         return g
 
     def _measured_again(self, est, gain: float, over: float):
@@ -147,24 +151,29 @@ class GapBridge:
         inside the epoch was carried at the speeds its steps gave, at the old tilt: it scales as
         the epoch did (a model whose speeds and rates all scale by s carries s times the metres).
         One from before the epoch (the camera was turned since) keeps its metres. A search that
-        read the tilt off on the wet frames before a gap left the gap 7 % short (a lobe run)."""
+        read the tilt off on the wet frames before a gap left the gap 7 % short (a lobe run).
+        True: the gap open or settling now is inside the epoch, and has been scaled."""
         since, old = getattr(est, "rescaled_since_s", None), over - gain
         if since is None or abs(old) < _MIN_EPOCH_M or not 0.5 <= over / old <= 2.0:
-            return
-        scale, since = over / old, since - _TIME_EPS
+            return False
+        scale, since, g = over / old, since - _TIME_EPS, self._gap
         for gap in self._carried:
             if gap[0] >= since:
                 extra, gap[2] = gap[2] * (scale - 1.0), gap[2] * scale
                 self.offset_m += extra
+                self._out_m += extra
+                if g is not None and g.t0 >= gap[1]:    # the gap open now starts after it: so does its
+                    g.d0 += extra                        # distance (its close sets the offset from it)
                 self._hist = deque((t, d + extra if t >= gap[1] else d) for t, d in self._hist)
-        g = self._gap
-        if g is not None and g.t0 >= since:   # open or settling: its model, and what came before it
-            before = min(max((g.vis0 - (est.distance_m - over)) / old, 0.0), 1.0)
-            g.measured_again(scale, gain * before)
         if self._settled_v is not None and self._settled_v[0] >= since:
             self._settled_v = (self._settled_v[0], self._settled_v[1] * scale)
-        if self._cruise[1] is not None:               # (read lately: inside the epoch)
-            self._cruise = (None, self._cruise[1] * scale)
+        if self._cruise[1] is not None and self._cruise[1][0] >= since:
+            self._cruise = (None, (self._cruise[1][0], self._cruise[1][1] * scale))
+        if g is None or g.t0 < since:
+            return False
+        before = min(max((g.vis0 - (est.distance_m - over)) / old, 0.0), 1.0)   # the epoch's share before it
+        g.measured_again(scale, gain * before)
+        return True
 
     # -- blind ----------------------------------------------------------------------------------------
 
@@ -180,7 +189,7 @@ class GapBridge:
         g = self._gap
         see_stand(self.p, g, getattr(est, "stand", None))     # (a plain estimate shows none)
         T, stands_var = model_time(g, est.t_s)
-        var = model_var(self.p, T, g.v0, sa=g.sa) + stands_var
+        var = model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
         out = g.d0 + travel(self.p, g, T)
@@ -196,14 +205,16 @@ class GapBridge:
             # another fresh start while the last one settles: what was measured since that one
             # settles the gap (or, too short, reopens it); this frame's motion is unknown again
             self._settle_or_reopen()
-        if gain:                              # before the gap closes: its model is in the old metres
-            self._measured_again(est, gain, over)
         if self._gap is None and not est.continuous and self._hist:
             self._gap = self._open_gap()      # a fresh start right after a measured frame: a gap of one
+        # before the gap closes: its model is in the old metres. The samples after a gap inside the
+        # epoch scale with it, as a plain scale even when it is a remount's (spread over their own
+        # span, a 3 % remount read as a ramp: 0.54 m/s after a gap for 0.3)
+        scaled = bool(gain) and self._measured_again(est, gain, over)
         if self._gap is not None and self._settling is None:
             gap_T = self._close_gap(est)
         elif self._settling is not None:
-            _remeasured(self._settling[1], gain, over)
+            _remeasured(self._settling[1], gain, over, as_scale=scaled, upto_m=est.distance_m - gain)
             self._settling[1].append((est.t_s, est.distance_m))
             if est.t_s - self._settling[0] >= self.p.settle_s:
                 self._settle_or_reopen()
@@ -231,7 +242,7 @@ class GapBridge:
         if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
             g = self._gap
             T, stands_var = model_time(g, self._settling[0])
-            total += model_var(self.p, T, g.v0, sa=g.sa) + stands_var
+            total += model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var
         # for the fusion: the white part only (the pose term is slow, a filter must not average it)
         noise = math.hypot(self._frame_noise(est), math.sqrt(self._jitter.value))
         return Bridged(self._out_m, math.sqrt(total), False, noise, gap_T)
@@ -264,7 +275,7 @@ class GapBridge:
         elif since is None or abs(v - since[1]) > max(0.01, 0.05 * abs(since[1])):
             self._cruise = ((est.t_s, v), cruise)
         elif est.t_s - since[0] >= self.p.history_s:
-            self._cruise = (since, v)
+            self._cruise = (since, (est.t_s, v))
 
     def _frame_noise(self, est) -> float:
         spread = (est.spread_mm or 0.0) / 1000.0

@@ -76,18 +76,23 @@ def ramp_at(ts, ds, rate: float, k: float = 3.0, floor_m: float = 2e-5) -> float
     return v0 if cruise - rss > k * k * noise else None
 
 
-def remeasured(samples: list, gain_m: float, over_m: float = 0.0):
+def remeasured(samples: list, gain_m: float, over_m: float = 0.0, as_scale: bool = False,
+               upto_m: float | None = None):
     """The odometer measured its steps again (a better tilt): (time, distance) samples a speed is
     read from (the speed filter's window, the speed after a gap) gain it too, in proportion to the
     distance each had covered (a scale error), so that the correction is not read as speed.
-    over_m: the signed metres the gain was spread over (tilt auto's epoch, crawler/autotilt.py),
+    over_m: the signed metres the gain was spread over, as they are after it (tilt auto's epoch,
+    crawler/autotilt.py),
     so the newest sample gains all of it and one over_m before none; unknown (0), or a re-measure
-    too large for a plain scale (`is_rescale`), the samples' own span."""
+    too large for a plain scale (`is_rescale`), the samples' own span; `as_scale`: a plain scale
+    however large (samples the re-measure is known to have scaled as a whole). upto_m: the
+    distance, before the re-measure, the gain is all of (the frame that brought it, not yet among
+    the samples); else the newest sample's."""
     if not gain_m or len(samples) < 2:
         return samples
-    d_last = samples[-1][1]
-    if is_rescale(gain_m, over_m):
-        eps = gain_m / over_m
+    d_last = samples[-1][1] if upto_m is None else upto_m
+    if is_rescale(gain_m, over_m) or (as_scale and over_m):
+        eps = gain_m / (over_m - gain_m)        # over_m is after the re-measure, the samples before it
         samples[:] = [(t, d + gain_m - eps * (d_last - d)) for t, d in samples]
     elif d_last != samples[0][1]:
         d0, span = samples[0][1], d_last - samples[0][1]
