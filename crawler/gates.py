@@ -38,6 +38,7 @@ from .flow import encoder_copy
 
 SPEED_NOISE_RATE = 0.05   # the speed's jitter is remembered over ~20 believed frames...
 SPEED_NOISE_MIN = 10      # ...and counts once 10 have shown it
+DRIVE_MEMORY_S = 5.0      # the fastest believed speed is the drive's for this long
 REMATCH_NCC = 0.3         # a match across a gap whose patches' fine texture correlates less is not the wall's...
 REMATCH_AFTER_S = 0.2     # ...once this long blind: over a few frames the guess stays on the wall, and at CRF 40
                           # the encoder leaves a wall's fine texture only as blocks
@@ -65,6 +66,7 @@ class FrameGates:
         self._dv_var = FadingMean(SPEED_NOISE_RATE)   # the variance of a believed speed's change from the last one's
         self._dv = None                       # ...and that last change
         self._after_gap = False       # from a gap until the tracks see the wall move: copies say nothing
+        self._drive = None            # (t, speed) of the fastest believed lately: what a start sets off to
 
     def textured(self, energy: float) -> bool:
         ref = self.texture_ref
@@ -167,12 +169,26 @@ class FrameGates:
             self._dv = None
         self.v_ref, self.t_ref = v, t_s
         self._refused_since = None    # a believed frame ends any refusal
+        if self._drive is None or abs(v) >= abs(self._drive[1]) or t_s - self._drive[0] > DRIVE_MEMORY_S:
+            self._drive = (t_s, v)
 
-    def plausible(self, v: float, t_s: float, pulled: bool = False, frame_s: float = 0.0) -> bool:
+    def set_off(self, t_s: float | None):
+        """The frames showed the crawler set off out of a stand at t_s, blind (crawler/stands.py):
+        from then on it is taken to drive as fast as it did lately, so a stand read under a pull
+        right after must be seen coming. Tracks on the wet edge, as the wall came back, read a stand
+        where the crawler drove at 0.1 m/s, 0.3 s after the frames had shown it set off, and the gap
+        after was carried at that standstill: -19 % (a stop run on a third seed)."""
+        if t_s is not None and self._drive is not None and self.v_ref is not None and t_s > self.t_ref:
+            self.v_ref, self.t_ref = self._drive[1], t_s
+
+    def plausible(self, v: float, t_s: float, pulled: bool = False, frame_s: float = 0.0,
+                  set_off: float | None = None) -> bool:
         """Could the crawler have gone from v_ref (at t_ref) to v by t_s? `pulled`: read on a
         keyframe under shading that stays put in the image (flow.static_pull), which pulls the
         tracks toward a stand; there a stand must be seen coming, from a speed one frame (frame_s)
-        of braking can stop, and a sudden one is never taken for a collision."""
+        of braking can stop, and a sudden one is never taken for a collision. `set_off`: when the
+        frames last showed it set off out of a stand since (set_off)."""
+        self.set_off(set_off)
         p = self.p
         if self.v_ref is None:
             return True

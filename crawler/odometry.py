@@ -275,7 +275,7 @@ class Odometer:
         """The speed since the last good frame (a fresh keyframe counts as one) against the one before (gates.py)."""
         dt = t_s - self._last_good_t
         return dt <= 0 or self._gates.plausible((c.step - self._last_step) / dt, t_s, self._kf.flat,
-                                                 min(dt, t_s - (self._prev_t or 0.0)))
+                                                 min(dt, t_s - (self._prev_t or 0.0)), self._dense.stands.take_set_off())
 
     def _measure(self, img, t_s, rescue: bool = True) -> Estimate:
         (idx, pts1, n_visible), p, kf = self._track_guessed(img, t_s), self.params, self._kf

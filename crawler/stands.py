@@ -66,6 +66,7 @@ class StandWatch:
         self._slow = 0                # ...of them slow ones
         self._stand_yardstick = None  # the yardstick the open stand was seen against
         self._broken = False          # a dark or flattened frame since the last still one
+        self.set_off = None           # where a stand ended because the frames moved again (take_set_off)
 
     def unseen(self):
         """A dark or flattened frame: nothing to compare across it. What the drive changed frames by,
@@ -130,7 +131,8 @@ class StandWatch:
             if self.since is None and (not slow or self._slow >= self.p.slow_frames):
                 self._moved = (self._moved + [(change, texture)])[-self.p.memory:]
             elif self.since is not None and self._moves >= self.p.moves:
-                self.since = None     # (inside a stand a change is not yet the drive's: a keyframe's)
+                self.since, self.set_off = None, self.until   # (inside a stand a change is not yet the
+                                                              # drive's: a keyframe's)
             return self.stand
         if not self._stills:          # still since the frame `lag` before, not since the one before that
             self._from = 0.5 * (seen[max(0, len(seen) - 2 - self.p.lag)][0] + seen[-1 - self.p.lag][0])
@@ -138,7 +140,14 @@ class StandWatch:
         self._broken = False
         if self.since is None and self._stills >= self.p.frames:
             self.since, self._stand_yardstick = min(self._from + self._edge_s(), t_s), yardstick
+            self.set_off = None
         return self.stand
+
+    def take_set_off(self) -> float | None:
+        """When the frames last showed the crawler set off out of a stand (once: the odometer's gates
+        take it, crawler/gates.py), or None."""
+        t, self.set_off = self.set_off, None
+        return t
 
     def _edge_s(self) -> float:
         """How far inside the frames still to the comparison the stand itself lies, at each end: a

@@ -409,6 +409,30 @@ def test_under_shading_that_stays_put_a_stand_must_be_seen_coming():
     assert braking.plausible(0.0, t + 4 * dt, True, dt)
 
 
+def test_a_stand_read_under_a_pull_after_the_frames_showed_a_set_off_must_be_seen_coming():
+    """Blind through a brake to a stand and a start that the frames showed (crawler/stands.py),
+    the wall came back on the wet edge and its tracks read a stand where the crawler drove at
+    0.1 m/s; the last believed speed was the brake's last (0.012 m/s), from which a stand was
+    plausible, and the gap after was carried at that standstill (-19.1 %, now -1.7 %: a stop run
+    on a third seed). After a set-off the crawler is taken to drive as fast as it did lately."""
+    from crawler.gates import FrameGates
+
+    dt, p = 1 / 30, OdometryParams()
+
+    def braked():                                             # cruising at 0.1 m/s, then braking
+        g = FrameGates(p)
+        for k in range(30):
+            g.measured(0.1 if k < 24 else 0.1 - 0.015 * (k - 23), k * dt)
+        return g
+
+    t = 29 * dt + 0.9                                         # blind: stood, set off at t - 0.3
+    assert braked().plausible(0.0, t, True, dt)               # no set-off shown: a stand is plausible
+    g = braked()
+    assert not g.plausible(0.0, t, True, dt, set_off=t - 0.3)   # shown: a stand not seen coming
+    assert g.plausible(0.09, t + dt, True, dt)                # the wall seen moving: believed
+    assert braked().plausible(0.0, t, False, dt, set_off=t - 0.3)   # without a pull a stand may be real
+
+
 def test_after_a_gap_tracks_on_faint_blocks_the_encoder_copied_are_no_stand_but_on_texture_they_are(texture):
     """At CRF 38 the encoder copies the blocks of a wet wall under the LED's highlight, pixel for
     pixel, while it codes the rest of the frame anew: the frame is no copy, but tracks on those

@@ -160,6 +160,18 @@ def test_a_blackout_inside_a_stand_neither_ends_it_nor_times_its_end():
     assert seen[-1] is None                         # ...and the frames after show it drove
 
 
+def test_a_stand_that_ends_because_the_frames_move_again_says_when_the_crawler_set_off_once():
+    pos, stop, start = brake_stand_go()
+    w = StandWatch()
+    for k, f in enumerate(frames_of(pos)):
+        w.update(k / FPS, f)
+        if k == start - 2:
+            assert w.take_set_off() is None                 # standing: no set-off yet
+    t = w.take_set_off()
+    assert t is not None and abs(t * FPS - start) <= 1.5     # where it set off, within a frame or two
+    assert w.take_set_off() is None                         # taken once
+
+
 def test_a_measured_frame_ends_a_stand_but_keeps_the_yardstick():
     pos, stop, start = brake_stand_go()
     frames = frames_of(pos)
