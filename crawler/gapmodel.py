@@ -53,7 +53,8 @@ class Gap:
     edge_s: float = 0.0               # half the time of the start out of the stand shown (_edge)
     vis0: float = 0.0                 # the odometer's own distance at t0
     cruise: float | None = None       # the last steady speed measured before it (gaps.py)
-    resumed: tuple | None = None      # (model time, speed): after a stand shown, it drove on at that speed
+    resumed: tuple | None = None      # (model time, speed, until): after a stand shown, it drove on at that
+                                      # speed (a braking gap: until another stand shown; else inf)
 
     def measured_again(self, scale: float, gain_before_m: float):
         """Tilt auto measured the steps its speeds came from again (gaps.py): every speed and rate
@@ -61,7 +62,7 @@ class Gap:
         self.v0 = None if self.v0 is None else self.v0 * scale
         self.a0, self.sa, self.up = self.a0 * scale, self.sa * scale, self.up * scale
         self.cruise = None if self.cruise is None else self.cruise * scale
-        self.resumed = None if self.resumed is None else (self.resumed[0], self.resumed[1] * scale)
+        self.resumed = None if self.resumed is None else (self.resumed[0], self.resumed[1] * scale, self.resumed[2])
         self.d0, self.vis0 = self.d0 + gain_before_m, self.vis0 + gain_before_m
 
 
@@ -81,18 +82,21 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
             before = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s)
             g.before_last, g.last_end = max(before, g.before_last), g.stand[1]   # (one inside the last's start)
             if g.resumed is None and g.v0 is not None and not braking(g):
-                g.resumed = (g.before_last, speed_after_stand(g))
+                g.resumed = (g.before_last, speed_after_stand(g), math.inf)
             g.stood_s += g.stand[1] - max(g.stand[0], g.t0)
             _edge(p, g, 3.0)
-        if braking(g):                                 # the stop it implies, shown: it set off then,
-            g.last_end = g.stand[1]                    # and drove on at its cruise (travel)
+        if braking(g) and g.stand[1] - g.t0 >= -g.v0 / g.a0:   # the stop it implies, shown: it set
+            g.last_end = g.stand[1]                    # off then, and drove on at its cruise (travel)
             if g.resumed is None:
                 v = speed_after_stand(g)
-                g.resumed = (g.last_end - g.t0 + abs(v) / (2 * drive_rate(p)), v)
+                g.resumed = (g.last_end - g.t0 + abs(v) / (2 * drive_rate(p)), v, math.inf)
         g.stand, g.confirmed = None, False
     if stand is not None:
         if g.stand is None:
             g.held_from = stand[1]                     # first shown at this frame
+            if braking(g) and g.resumed is not None and g.resumed[2] == math.inf:   # it stood again:
+                T0, v, _ = g.resumed                   # the carry ends, its brake taken off
+                g.resumed = (T0, v, max(T0, stand[0] - g.t0 - abs(v) / (2 * drive_rate(p))))
         g.stand = stand
         if not g.confirmed and stand[1] - max(stand[0], g.t0) >= p.min_stand_s:
             g.confirmed = True                         # the brake into it
@@ -184,16 +188,18 @@ def travel(p: BridgeParams, g: Gap, T: float) -> float:
     if g.v0 is None:
         return 0.0
     m, v0, a = p.max_bridge_s, g.v0, g.a0
-    if a and v0 * a < 0 and -v0 / a < T:          # braking: stops inside the gap (and sets off after a
-        braked = -0.5 * v0 * v0 / a               # stand the frames showed end)
-        return braked if g.resumed is None else braked + g.resumed[1] * max(0.0, T - g.resumed[0])
-
     def faded(T):                                  # (the speed falls linearly from m to 2 m: never back)
         x = min(max(T - m, 0.0), m)
         return min(T, m) + x - x * x / (2 * m)
 
+    if a and v0 * a < 0 and -v0 / a < T:          # braking: stops inside the gap, and sets off after a
+        braked = -0.5 * v0 * v0 / a               # stand the frames showed end, up to one more shown
+        if g.resumed is None or T <= g.resumed[0]:
+            return braked
+        T0, v, until = g.resumed
+        return braked + v * (faded(min(T, until)) - faded(T0))
     if g.resumed is not None and T > g.resumed[0]:   # after a stand shown: on at the speed it set off to
-        T0, v = g.resumed
+        T0, v = g.resumed[:2]
         return v0 * faded(T0) + v * (faded(T) - faded(T0))
     return v0 * faded(T) + 0.5 * a * min(T, m) ** 2
 
@@ -236,13 +242,15 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     braked = None if stop is None else -0.5 * g.v0 * g.v0 / g.a0
     shown = g.last_end - g.t0 if g.last_end is not None and g.stand is None else None
     shown = shown if shown is not None and stop is not None and stop <= shown <= T else None
+    before = braked if shown is None else travel(p, g, shown)    # (and what it drove between two stands)
     if stop is not None and abs(v1) > p.speed_sigma_m_s and a1 * v1 > 0 and T - v1 / a1 >= stop:
         # braked to a stop, still speeding up when seen again: it started from rest v1 / a1 before,
         # or where the frames showed its stand end, if a drive gets to v1 from there by then (the
         # fitted rate of a start seen for a few frames is rough: 0.30 m/s^2 where it was 0.5)
-        if shown is not None and abs(v1) >= p.min_drive_accel_m_s2 * (T - shown):
-            return braked + math.copysign(0.5 * abs(v1) * (T - shown), v1), (0.5 * v1 * p.shown_end_sigma_s) ** 2
-        return braked + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
+        if shown is not None and (p.min_drive_accel_m_s2 * (T - shown) <= abs(v1)
+                                  <= p.max_accel_m_s2 * (T - shown + p.shown_end_sigma_s)):
+            return before + math.copysign(0.5 * abs(v1) * (T - shown), v1), (0.5 * v1 * p.shown_end_sigma_s) ** 2
+        return before + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
     if stop is not None and abs(v1) > p.speed_sigma_m_s:
         # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
         # How long it stood is not in the video: anything from not at all to all the time left,
@@ -253,13 +261,16 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
         if shown is not None:
             ramp = min(abs(v1) / a, T - shown)
             moved = 0.5 * a * ramp * ramp + abs(v1) * (T - shown - ramp)
-            return braked + math.copysign(moved, v1), (v1 * p.shown_end_sigma_s) ** 2
+            return before + math.copysign(moved, v1), (v1 * p.shown_end_sigma_s) ** 2
         ramp = min(abs(v1) / a, T - stop)
         longest = T - stop - ramp         # the longest it can have stood
         moved = 0.5 * a * ramp * ramp + abs(v1) * longest / 2
         return braked + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
-    if stop is not None:
-        return braked, 0.0             # stopped, and still stopped
+    if stop is not None:               # stopped, and still stopped; after a set-off the frames showed,
+        if g.resumed is None:          # stopped again somewhere up to where the carry had it: the middle
+            return braked, 0.0
+        carried = travel(p, g, T) - braked
+        return braked + carried / 2, carried * carried / 12.0
     # a constant acceleration over the gap; but a ramp seen at one end goes on at its rate to the
     # other end's speed, when the change is more than the speeds' own errors could make
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0

@@ -66,7 +66,7 @@ class FrameGates:
         self._dv_var = FadingMean(SPEED_NOISE_RATE)   # the variance of a believed speed's change from the last one's
         self._dv = None                       # ...and that last change
         self._after_gap = False       # from a gap until the tracks see the wall move: copies say nothing
-        self._drive = None            # (t, speed) of the fastest believed lately: what a start sets off to
+        self._recent: deque = deque() # (t, speed) believed in the last DRIVE_MEMORY_S: what a start sets off to
 
     def textured(self, energy: float) -> bool:
         ref = self.texture_ref
@@ -169,17 +169,25 @@ class FrameGates:
             self._dv = None
         self.v_ref, self.t_ref = v, t_s
         self._refused_since = None    # a believed frame ends any refusal
-        if self._drive is None or abs(v) >= abs(self._drive[1]) or t_s - self._drive[0] > DRIVE_MEMORY_S:
-            self._drive = (t_s, v)
+        self._recent.append((t_s, v))
+        while self._recent and self._recent[0][0] < t_s - DRIVE_MEMORY_S:
+            self._recent.popleft()
 
     def set_off(self, t_s: float | None):
         """The frames showed the crawler set off out of a stand at t_s, blind (crawler/stands.py):
-        from then on it is taken to drive as fast as it did lately, so a stand read under a pull
+        from then on it is taken to drive as it did lately (the 90th percentile of the speeds
+        believed in the last DRIVE_MEMORY_S, the way it last moved), so a stand read under a pull
         right after must be seen coming. Tracks on the wet edge, as the wall came back, read a stand
         where the crawler drove at 0.1 m/s, 0.3 s after the frames had shown it set off, and the gap
         after was carried at that standstill: -19 % (a stop run on a third seed)."""
-        if t_s is not None and self._drive is not None and self.v_ref is not None and t_s > self.t_ref:
-            self.v_ref, self.t_ref = self._drive[1], t_s
+        if t_s is None or self.v_ref is None or t_s <= self.t_ref:
+            return
+        tol = self.p.speed_tol_m_s
+        way = next((v for _, v in reversed(self._recent) if abs(v) > tol), 0.0)
+        moving = sorted(abs(v) for _, v in self._recent if v * way > 0)
+        if moving:
+            self.v_ref = math.copysign(moving[int(0.9 * (len(moving) - 1))], way)
+            self.t_ref, self._dv = t_s, None
 
     def plausible(self, v: float, t_s: float, pulled: bool = False, frame_s: float = 0.0,
                   set_off: float | None = None) -> bool:
@@ -187,8 +195,10 @@ class FrameGates:
         keyframe under shading that stays put in the image (flow.static_pull), which pulls the
         tracks toward a stand; there a stand must be seen coming, from a speed one frame (frame_s)
         of braking can stop, and a sudden one is never taken for a collision. `set_off`: when the
-        frames last showed it set off out of a stand since (set_off)."""
-        self.set_off(set_off)
+        frames showed it set off out of a stand since the last believed frame, if they did
+        (set_off; one older than DRIVE_MEMORY_S says nothing of now)."""
+        if set_off is not None and t_s - set_off <= DRIVE_MEMORY_S:
+            self.set_off(set_off)
         p = self.p
         if self.v_ref is None:
             return True

@@ -702,6 +702,32 @@ def test_a_braking_gap_sets_off_where_the_frames_showed_its_stand_end():
     assert middle > d + 0.03
 
 
+def test_a_braking_gap_s_carry_ends_at_a_second_stand_fades_and_is_not_set_by_a_stand_before_its_stop():
+    """A review's cases: a second stand shown ended the carry (it drove on at 0.2 m/s through it);
+    blind for a minute it fades as any carry does (it grew linearly); a stand shown ending before
+    the model's own stop is no set-off (the distance jumped 11.5 mm); a start dated from a shown
+    end 0.02 s before at 0.1 m/s (5 m/s^2) is not taken."""
+    p = BridgeParams()
+    g = Gap(0.0, 0.0, 0.067, -0.5, cruise=0.2)
+    for s in np.arange(0.0, 3.0, 1 / FPS):
+        see_stand(p, g, (0.1, min(s, 0.7)) if 0.2 <= s < 0.8 else (1.5, min(s, 3.0)) if s >= 1.6 else None)
+    braked, T0 = 0.067 ** 2 / 1.0, 0.7 + 0.2 / 0.8
+    assert travel(p, g, 2.9) == pytest.approx(braked + 0.2 * (1.5 - 0.25 - T0))   # stood again from 1.5 s
+    long = Gap(0.0, 0.0, 0.067, -0.5, cruise=0.2)
+    for s in np.arange(0.0, 1.0, 1 / FPS):
+        see_stand(p, long, (0.1, min(s, 0.7)) if 0.2 <= s < 0.8 else None)
+    d = [travel(p, long, T) for T in (30.0, 45.0, 60.0, 100.0)]
+    assert d[0] < d[1] < d[2] == pytest.approx(d[3])                 # faded to nothing by 2 max_bridge_s
+    early = Gap(0.0, 0.0, 0.1, -0.15)                                # stops at 0.67 s
+    for s in np.arange(0.0, 0.5, 1 / FPS):
+        see_stand(p, early, (0.0, min(s, 0.1)) if s < 0.2 else None)
+    assert early.resumed is None and early.last_end is None
+    fast = Gap(0.0, 0.0, 0.067, -0.5, cruise=0.2)
+    for s in np.arange(0.0, 1.0, 1 / FPS):
+        see_stand(p, fast, (0.1, min(s, 0.7)) if 0.2 <= s < 0.8 else None)
+    assert settled_travel(p, fast, 0.72, 0.1, 0.4)[0] == pytest.approx(braked + 0.1 ** 2 / 0.8)   # the fit's
+
+
 def test_a_braking_gap_drives_on_at_its_cruise_once_its_stand_shown_ends_and_a_start_dates_from_it():
     """Blind from a brake to the run's end, the crawler stood (shown) and drove on: the model held it
     at its stop for good (a stop run on another seed: -15.0 %, now +2.2 %). From the stand's end,

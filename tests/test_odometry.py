@@ -431,6 +431,18 @@ def test_a_stand_read_under_a_pull_after_the_frames_showed_a_set_off_must_be_see
     assert not g.plausible(0.0, t, True, dt, set_off=t - 0.3)   # shown: a stand not seen coming
     assert g.plausible(0.09, t + dt, True, dt)                # the wall seen moving: believed
     assert braked().plausible(0.0, t, False, dt, set_off=t - 0.3)   # without a pull a stand may be real
+    assert braked().plausible(0.0, t + 6.0, True, dt, set_off=t - 0.3)   # a set-off 6 s old says nothing
+
+    g = FrameGates(p)                                         # forward at 0.3 m/s, then reversing at 0.1
+    for k in range(60):
+        g.measured(0.3 if k < 30 else -0.1, k * dt)
+    g.set_off(2.5)
+    assert g.v_ref == pytest.approx(-0.1)                     # it sets off the way it last moved
+    g = FrameGates(p)                                         # a cruise at 0.1 with one jitter spike
+    for k in range(60):
+        g.measured(0.16 if k == 10 else 0.1 - (0.06 if k >= 54 else 0.0), k * dt)
+    g.set_off(2.5)
+    assert g.v_ref == pytest.approx(0.1)                      # the drive's speed, not the spike's
 
 
 def test_after_a_gap_tracks_on_faint_blocks_the_encoder_copied_are_no_stand_but_on_texture_they_are(texture):
