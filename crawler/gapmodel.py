@@ -239,38 +239,8 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     if g.v0 is None:                      # a run that started blind: the speed after, constant
         return v1 * T, 0.0
     stop = stops(g, T)
-    braked = None if stop is None else -0.5 * g.v0 * g.v0 / g.a0
-    shown = g.last_end - g.t0 if g.last_end is not None and g.stand is None else None
-    shown = shown if shown is not None and stop is not None and stop <= shown <= T else None
-    before = braked if shown is None else travel(p, g, shown)    # (and what it drove between two stands)
-    if stop is not None and abs(v1) > p.speed_sigma_m_s and a1 * v1 > 0 and T - v1 / a1 >= stop:
-        # braked to a stop, still speeding up when seen again: it started from rest v1 / a1 before,
-        # or where the frames showed its stand end, if a drive gets to v1 from there by then (the
-        # fitted rate of a start seen for a few frames is rough: 0.30 m/s^2 where it was 0.5)
-        if shown is not None and (p.min_drive_accel_m_s2 * (T - shown) <= abs(v1)
-                                  <= p.max_accel_m_s2 * (T - shown + p.shown_end_sigma_s)):
-            return before + math.copysign(0.5 * abs(v1) * (T - shown), v1), (0.5 * v1 * p.shown_end_sigma_s) ** 2
-        return before + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
-    if stop is not None and abs(v1) > p.speed_sigma_m_s:
-        # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
-        # How long it stood is not in the video: anything from not at all to all the time left,
-        # so the middle, with that range's uniform variance; unless the frames showed the stand
-        # end (crawler/stands.py): then it set off then (a stop run on another seed: +32 mm when
-        # the middle was taken for a start the frames had shown 0.6 s later)
-        a = abs(g.a0)
-        if shown is not None:
-            ramp = min(abs(v1) / a, T - shown)
-            moved = 0.5 * a * ramp * ramp + abs(v1) * (T - shown - ramp)
-            return before + math.copysign(moved, v1), (v1 * p.shown_end_sigma_s) ** 2
-        ramp = min(abs(v1) / a, T - stop)
-        longest = T - stop - ramp         # the longest it can have stood
-        moved = 0.5 * a * ramp * ramp + abs(v1) * longest / 2
-        return braked + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
-    if stop is not None:               # stopped, and still stopped; after a set-off the frames showed,
-        if g.resumed is None:          # stopped again somewhere up to where the carry had it: the middle
-            return braked, 0.0
-        carried = travel(p, g, T) - braked
-        return braked + carried / 2, carried * carried / 12.0
+    if stop is not None:
+        return _settled_after_stop(p, g, T, v1, a1, stop)
     # a constant acceleration over the gap; but a ramp seen at one end goes on at its rate to the
     # other end's speed, when the change is more than the speeds' own errors could make
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0
@@ -297,3 +267,38 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
         least = math.copysign((v0 * v0 + v1 * v1) / (2 * a), v0 + v1)
         return guess, max(when, (guess - least) ** 2 / 6.0)
     return guess, when
+
+
+def _settled_after_stop(p: BridgeParams, g: Gap, T: float, v1: float, a1: float, stop: float) -> tuple[float, float]:
+    """settled_travel for a gap whose model braked to a stop inside it (`stop` s after its start)."""
+    braked = -0.5 * g.v0 * g.v0 / g.a0
+    shown = g.last_end - g.t0 if g.last_end is not None and g.stand is None else None
+    shown = shown if shown is not None and stop <= shown <= T else None
+    before = braked if shown is None else travel(p, g, shown)    # (and what it drove between two stands)
+    if abs(v1) > p.speed_sigma_m_s and a1 * v1 > 0 and T - v1 / a1 >= stop:
+        # braked to a stop, still speeding up when seen again: it started from rest v1 / a1 before,
+        # or where the frames showed its stand end, if a drive gets to v1 from there by then (the
+        # fitted rate of a start seen for a few frames is rough: 0.30 m/s^2 where it was 0.5)
+        if shown is not None and (p.min_drive_accel_m_s2 * (T - shown) <= abs(v1)
+                                  <= p.max_accel_m_s2 * (T - shown + p.shown_end_sigma_s)):
+            return before + math.copysign(0.5 * abs(v1) * (T - shown), v1), (0.5 * v1 * p.shown_end_sigma_s) ** 2
+        return before + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
+    if abs(v1) > p.speed_sigma_m_s:
+        # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
+        # How long it stood is not in the video: anything from not at all to all the time left,
+        # so the middle, with that range's uniform variance; unless the frames showed the stand
+        # end (crawler/stands.py): then it set off then (a stop run on another seed: +32 mm when
+        # the middle was taken for a start the frames had shown 0.6 s later)
+        a = abs(g.a0)
+        if shown is not None:
+            ramp = min(abs(v1) / a, T - shown)
+            moved = 0.5 * a * ramp * ramp + abs(v1) * (T - shown - ramp)
+            return before + math.copysign(moved, v1), (v1 * p.shown_end_sigma_s) ** 2
+        ramp = min(abs(v1) / a, T - stop)
+        longest = T - stop - ramp         # the longest it can have stood
+        moved = 0.5 * a * ramp * ramp + abs(v1) * longest / 2
+        return braked + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
+    if g.resumed is None:              # stopped, and still stopped; after a set-off the frames showed,
+        return braked, 0.0             # stopped again somewhere up to where the carry had it: the middle
+    carried = travel(p, g, T) - braked
+    return braked + carried / 2, carried * carried / 12.0
