@@ -89,14 +89,14 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
             g.last_end = g.stand[1]                    # off then, and drove on at its cruise (travel)
             if g.resumed is None:
                 v = speed_after_stand(g)
-                g.resumed = (g.last_end - g.t0 + abs(v) / (2 * drive_rate(p)), v, math.inf)
+                g.resumed = (g.last_end - g.t0 + edge_time(p, v), v, math.inf)
         g.stand, g.confirmed = None, False
     if stand is not None:
         if g.stand is None:
             g.held_from = stand[1]                     # first shown at this frame
             if braking(g) and g.resumed is not None and g.resumed[2] == math.inf:   # it stood again:
                 T0, v, _ = g.resumed                   # the carry ends, its brake taken off
-                g.resumed = (T0, v, max(T0, stand[0] - g.t0 - abs(v) / (2 * drive_rate(p))))
+                g.resumed = (T0, v, max(T0, stand[0] - g.t0 - edge_time(p, v)))
         g.stand = stand
         if not g.confirmed and stand[1] - max(stand[0], g.t0) >= p.min_stand_s:
             g.confirmed = True                         # the brake into it
@@ -146,15 +146,21 @@ def drive_rate(p: BridgeParams) -> float:
     return 2.0 / (1.0 / p.max_accel_m_s2 + 1.0 / p.min_drive_accel_m_s2)
 
 
+def edge_time(p: BridgeParams, v: float) -> float:
+    """Half the time a brake from v, or a start to it, takes at the drive's rate: what it covers,
+    at v, in that time."""
+    return abs(v) / (2 * drive_rate(p))
+
+
 def _edge(p: BridgeParams, g: Gap, share: float):
     """One brake or start: half its time as stood, the rate's range as variance. One drive brakes and
     sets off alike, so a stand's two are one error twice: the start adds three times the brake's
     variance, making the stand's (2 x)^2."""
     v = abs(moving_speed(g) or 0.0)
     quick, gentle = v / (2 * p.max_accel_m_s2), v / (2 * p.min_drive_accel_m_s2)
-    g.stood_s += v / (2 * drive_rate(p))
+    g.stood_s += edge_time(p, v)
     after = g.resumed[1] if g.resumed is not None else speed_after_stand(g)
-    g.edge_s = abs(after or 0.0) / (2 * drive_rate(p))    # the start out of it: the clock waits for it
+    g.edge_s = edge_time(p, after or 0.0)                 # the start out of it: the clock waits for it
     g.edges_var += share * (v * (gentle - quick)) ** 2 / 12.0
 
 
