@@ -55,6 +55,9 @@ class Gap:
     cruise: float | None = None       # the last steady speed measured before it (gaps.py)
     resumed: tuple | None = None      # (model time, speed, until): after a stand shown, it drove on at that
                                       # speed (a braking gap: until another stand shown; else inf)
+    carried_m: float = 0.0            # a braking gap: what it drove between stands shown before that
+    open_at_close: bool = False       # a stand was still shown when the wall was measured again
+    before_reset_m: float = 0.0       # the model's travel up to an operator's reset inside it
 
     def measured_again(self, scale: float, gain_before_m: float):
         """Tilt auto measured the steps its speeds came from again (gaps.py): every speed and rate
@@ -63,6 +66,7 @@ class Gap:
         self.a0, self.sa, self.up = self.a0 * scale, self.sa * scale, self.up * scale
         self.cruise = None if self.cruise is None else self.cruise * scale
         self.resumed = None if self.resumed is None else (self.resumed[0], self.resumed[1] * scale, self.resumed[2])
+        self.carried_m, self.edges_var = self.carried_m * scale, self.edges_var * scale ** 4   # (v * v / a)^2
         self.d0, self.vis0 = self.d0 + gain_before_m, self.vis0 + gain_before_m
 
 
@@ -82,35 +86,40 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
             before = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s)
             g.before_last, g.last_end = max(before, g.before_last), g.stand[1]   # (one inside the last's start)
             if g.resumed is None and g.v0 is not None and not braking(g):
-                g.resumed = (g.before_last, speed_after_stand(g), math.inf)
+                g.resumed = (g.before_last, speed_after_stand(p, g), math.inf)
             g.stood_s += g.stand[1] - max(g.stand[0], g.t0)
             _edge(p, g, 3.0)
         if braking(g) and g.stand[1] - g.t0 >= -g.v0 / g.a0:   # the stop it implies, shown: it set
-            g.last_end = g.stand[1]                    # off then, and drove on at its cruise (travel)
-            if g.resumed is None:
-                v = speed_after_stand(g)
+            if g.resumed is None:                      # off then, and drove on at its cruise (travel)
+                g.last_end, v = g.stand[1], speed_after_stand(p, g)
                 g.resumed = (g.last_end - g.t0 + edge_time(p, v), v, math.inf)
+            elif g.confirmed and g.resumed[2] != math.inf:   # another stand shown ended: on again
+                (T0, v, until), g.last_end = g.resumed, g.stand[1]
+                g.carried_m += v * (faded(p, until) - faded(p, T0))
+                g.resumed = (max(until, g.last_end - g.t0 + edge_time(p, v)), v, math.inf)
         g.stand, g.confirmed = None, False
     if stand is not None:
         if g.stand is None:
             g.held_from = stand[1]                     # first shown at this frame
-            if braking(g) and g.resumed is not None and g.resumed[2] == math.inf:   # it stood again:
-                T0, v, _ = g.resumed                   # the carry ends, its brake taken off
-                g.resumed = (T0, v, max(T0, stand[0] - g.t0 - edge_time(p, v)))
         g.stand = stand
         if not g.confirmed and stand[1] - max(stand[0], g.t0) >= p.min_stand_s:
             g.confirmed = True                         # the brake into it
             _edge(p, g, 1.0)
+            if braking(g) and g.resumed is not None and g.resumed[2] == math.inf:   # it stood again:
+                T0, v, _ = g.resumed                   # the carry ends, its brake taken off
+                g.resumed = (T0, v, max(T0, stand[0] - g.t0 - edge_time(p, v)))
 
 
-def speed_after_stand(g: Gap) -> float:
+def speed_after_stand(p: BridgeParams, g: Gap) -> float:
     """The speed a crawler sets off to after a stand the frames showed: its drive's cruise, the last
     steady speed measured before the gap, where the gap opened slower the same way (a brake that no
     fit read, or a speed read over a moment: a stop run on another seed opened one at 0.062 m/s
     from three frames of a brake, and carried the crawler at that after the stand where it drove
-    0.1: -25 mm); else the speed before it."""
+    0.1: -25 mm), or standing (its speed's sign is noise); else the speed before it."""
     c, v = g.cruise, g.v0
-    return c if c is not None and v is not None and c * v > 0 and abs(c) > abs(v) else v
+    if c is None or v is None or abs(c) <= abs(v):
+        return v
+    return c if c * v > 0 or abs(v) <= p.speed_sigma_m_s else v
 
 
 def moving_speed(g: Gap) -> float:
@@ -159,7 +168,7 @@ def _edge(p: BridgeParams, g: Gap, share: float):
     v = abs(moving_speed(g) or 0.0)
     quick, gentle = v / (2 * p.max_accel_m_s2), v / (2 * p.min_drive_accel_m_s2)
     g.stood_s += edge_time(p, v)
-    after = g.resumed[1] if g.resumed is not None else speed_after_stand(g)
+    after = g.resumed[1] if g.resumed is not None else speed_after_stand(p, g)
     g.edge_s = edge_time(p, after or 0.0)                 # the start out of it: the clock waits for it
     g.edges_var += share * (v * (gentle - quick)) ** 2 / 12.0
 
@@ -193,21 +202,25 @@ def travel(p: BridgeParams, g: Gap, T: float) -> float:
     reverse); beyond max_bridge_s the speed fades to nothing over as long again."""
     if g.v0 is None:
         return 0.0
-    m, v0, a = p.max_bridge_s, g.v0, g.a0
-    def faded(T):                                  # (the speed falls linearly from m to 2 m: never back)
-        x = min(max(T - m, 0.0), m)
-        return min(T, m) + x - x * x / (2 * m)
-
+    v0, a = g.v0, g.a0
     if a and v0 * a < 0 and -v0 / a < T:          # braking: stops inside the gap, and sets off after a
-        braked = -0.5 * v0 * v0 / a               # stand the frames showed end, up to one more shown
+        braked = -0.5 * v0 * v0 / a + g.carried_m   # stand the frames showed end, up to the next shown
         if g.resumed is None or T <= g.resumed[0]:
             return braked
         T0, v, until = g.resumed
-        return braked + v * (faded(min(T, until)) - faded(T0))
+        return braked + v * (faded(p, min(T, until)) - faded(p, T0))
     if g.resumed is not None and T > g.resumed[0]:   # after a stand shown: on at the speed it set off to
         T0, v = g.resumed[:2]
-        return v0 * faded(T0) + v * (faded(T) - faded(T0))
-    return v0 * faded(T) + 0.5 * a * min(T, m) ** 2
+        return v0 * faded(p, T0) + v * (faded(p, T) - faded(p, T0))
+    return v0 * faded(p, T) + 0.5 * a * min(T, p.max_bridge_s) ** 2
+
+
+def faded(p: BridgeParams, T: float) -> float:
+    """The model's time at full speed in T: beyond max_bridge_s the speed falls linearly to nothing
+    over as long again (never back)."""
+    m = p.max_bridge_s
+    x = min(max(T - m, 0.0), m)
+    return min(T, m) + x - x * x / (2 * m)
 
 
 def stops(g: Gap, T: float) -> float | None:
@@ -253,7 +266,11 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     ramped = abs(dv) >= p.ramp_dv_m_s
     shown = (g.stood_s > 0 or g.stand is not None) and not braking(g)
     dv_run = v1 - moving_speed(g)
-    if shown and moving_speed(g) * v1 >= 0 and abs(dv_run) < drive_rate(p) * T:
+    if shown and g.open_at_close and abs(v1) <= p.speed_sigma_m_s:
+        # still standing when the wall was measured again: it never set off (measuring again ended
+        # the stand, not the crawler); the model up to where it stood, with no brake out of a start
+        return travel(p, g, g.before_last), 0.0
+    if shown and (moving_speed(g) * v1 >= 0 or abs(v1) <= p.speed_sigma_m_s) and abs(dv_run) < drive_rate(p) * T:
         # the frames showed it stand and drive again: between the stands it drove at the speed before
         # (after one, at the speed it set off to; the time it stood is not in T), and a change to the
         # speed after came at the end, at the drive's rate (the trapezoid spread a brake measured as
@@ -306,5 +323,5 @@ def _settled_after_stop(p: BridgeParams, g: Gap, T: float, v1: float, a1: float,
         return braked + math.copysign(moved, v1), (v1 * longest) ** 2 / 12.0
     if g.resumed is None:              # stopped, and still stopped; after a set-off the frames showed,
         return braked, 0.0             # stopped again somewhere up to where the carry had it: the middle
-    carried = travel(p, g, T) - braked
-    return braked + carried / 2, carried * carried / 12.0
+    carried = travel(p, g, T) - braked - g.carried_m   # (what it drove between stands shown is known)
+    return braked + g.carried_m + carried / 2, carried * carried / 12.0

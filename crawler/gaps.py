@@ -8,17 +8,13 @@ afresh (its distance does not). This stage turns that into a distance that never
 - while blind, the distance is carried by a motion model: the speed and acceleration measured just
   before the gap (a crawler that was braking is taken to stop, not to reverse); published `bridged`;
 - after a fresh start, the gap's distance is settled once the speed after it is measured
-  (crawler/gapmodel.py): the trapezoid of the speeds before and after (a constant acceleration over
-  the gap), or a ramp seen at one end carried at its rate to the other end's speed, or, when the
-  model had the crawler stop inside the gap, its braking to a stop and a start at the same rate up
-  to the speed after, after a stand the video does not show (the middle of the stands possible). A
-  gap long enough to stop and start again in may hide a stand the model did not see coming: the
-  trapezoid stands, but its uncertainty spans everything down to braking and starting at the
-  crawler's best. A measurement too short to give a speed does not close the gap: if the wall is
-  lost again at once, the gap simply goes on from where it began, and frames measured after that
-  short start are continuous with it, not with the frames before the gap. A fresh start that
-  knows its motion over a few frames (a confirmed dense shift: `since`) counts them as measured
-  speed, and the speed that settled a gap carries the next one if it opens at once;
+  (crawler/gapmodel.py): the trapezoid of the two speeds, a ramp seen at one end carried at its
+  rate, or, where the model stopped inside the gap, a brake and a start at the same rate after the
+  middle of the stands possible; a gap long enough to stop and start in may hide a stand: its
+  uncertainty spans down to braking and starting at the crawler's best. Measured too briefly for
+  a speed and lost again, the gap goes on from where it began (the frames after that short start
+  are continuous with it); a fresh start that knows its motion over a few frames (`since`) counts
+  them as measured, and the speed that settled a gap carries the next one if it opens at once;
 - every estimate carries `sigma_m`, its 1-sigma uncertainty: the measurement's own (closed keyframe
   steps: the spread of the tracks over their number, and a scale term), the frame's jitter (what
   moves all tracks at once and so is not in their spread: the camera pitching on a bouncing car,
@@ -78,6 +74,7 @@ class GapBridge:
         self._carried: list = []      # [t0, t1, metres] of the gaps the model settled, newest last
         self._cruise = (None, None)   # ((since, speed) of the odometer's speed held steady, (t, speed) of the
                                       # last one held for history_s)
+        self._blind_at = None         # (t, distance published) of the last blind frame, while blind
 
     @property
     def sigma_m(self) -> float:
@@ -89,8 +86,14 @@ class GapBridge:
         return math.sqrt(self.var_meas)
 
     def reset(self, distance_m: float = 0.0):
-        """The operator's reset: count from here, with no uncertainty carried over."""
+        """The operator's reset: count from here, with no uncertainty carried over. Blind now, the gap
+        goes on being bridged from the new count (a reset does not stop the crawler); the model's
+        travel before the reset is taken off where the gap is measured across."""
+        g, at = (self._gap, self._blind_at) if self._settling is None and self._restarted is None else (None, None)
         self.__init__(self.p, distance_m)
+        if g is not None and at is not None:
+            g.before_reset_m, g.d0 = at[1] - g.d0, distance_m - (at[1] - g.d0)
+            self._gap, self._blind_at = g, (at[0], distance_m)
 
     def update(self, est) -> Bridged:
         """One odometer estimate: t_s, distance_m, speed_m_s, tracking, keyframe, continuous,
@@ -172,7 +175,12 @@ class GapBridge:
         if g is None or g.t0 < since:
             return False
         before = min(max((g.vis0 - (est.distance_m - over)) / old, 0.0), 1.0)   # the epoch's share before it
+        restart = self._restarted
+        carried = 0.0 if restart is None else travel(self.p, g, model_time(g, restart[0])[0])
         g.measured_again(scale, gain * before)
+        if restart is not None:       # a fresh start inside it set the offset from the model (_close_gap):
+            self.offset_m += travel(self.p, g, model_time(g, restart[0])[0]) - carried   # that part scales too
+            self._restarted = (restart[0], restart[1] + gain * before)
         return True
 
     # -- blind ----------------------------------------------------------------------------------------
@@ -193,13 +201,14 @@ class GapBridge:
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
         out = g.d0 + travel(self.p, g, T)
+        self._blind_at = (est.t_s, out)
         jitter = self._jitter.value + max(self.p.pose_sigma_m, self._pitch_m) ** 2
         return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + jitter), True, step, est.t_s - g.t0)
 
     # -- measured -------------------------------------------------------------------------------------
 
     def _tracked(self, est) -> Bridged:
-        gap_T, gain = 0.0, getattr(est, "rescaled_m", 0.0)      # (a plain estimate has no re-measure)
+        self._blind_at, gap_T, gain = None, 0.0, getattr(est, "rescaled_m", 0.0)   # (a plain estimate: none)
         over = getattr(est, "rescaled_over_m", 0.0)
         if self._settling is not None and not est.continuous:
             # another fresh start while the last one settles: what was measured since that one
@@ -288,18 +297,20 @@ class GapBridge:
 
     def _close_gap(self, est) -> float:
         g = self._gap
+        g.open_at_close = g.stand is not None and g.confirmed
         see_stand(self.p, g, None)    # measured again: a stand still shown ends (one too short is none)
         T = est.t_s - g.t0
         restarted, self._restarted = self._restarted, None
         if est.continuous and restarted is None:   # measured across the gap: the odometer's
             self._gap = None          # distance has it all, and the offset stays as it was before it
-            self.var_meas += self.p.step_floor_m ** 2
+            self.var_meas += self.p.step_floor_m ** 2   # (but for what came before a reset inside it)
+            self.offset_m -= g.before_reset_m
         elif est.continuous and g.v0 is not None:
             # measured since a fresh start inside the gap (the offset was set then): up to that
             # start the gap is the model's, at the speed before it, and so is its uncertainty
             self._gap = None
             T_model, stands_var = model_time(g, restarted[0])
-            self.var_gaps += model_var(self.p, T_model, g.v0, sa=g.sa) + stands_var
+            self.var_gaps += model_var(self.p, T_model, moving_speed(g), sa=g.sa) + stands_var
             self._carry(g.t0, restarted[0], travel(self.p, g, T_model))
             self._hist.append((restarted[0], restarted[1] + self.offset_m))   # measured again: a speed
         else:                         # a fresh start: provisionally the model's, settled later

@@ -801,3 +801,107 @@ def test_a_braking_gap_settles_as_if_no_stand_were_shown():
     # (0.1 m/s 0.5 s after the stand's end is slower than any drive's start: it set off later)
     assert settled_travel(p, g, 2.5, 0.1, 0.5) == settled_travel(p, plain, 2.5, 0.1, 0.5)
     assert set_off(p, g, 2.3, 0.15, 0.5) is None
+
+
+def test_a_braking_gap_s_carry_ignores_a_brief_copy_and_goes_on_after_a_second_stand_shown():
+    """A crawler braked into a gap, stood (shown), set off and was carried at its cruise. A copy of
+    the faint wall for 0.1 s is no stand (under min_stand_s) and ended the carry for good (-853 mm
+    while blind); a real second stand, once it ends, carries it on again."""
+    p = BridgeParams()
+
+    def carried(second):
+        g = Gap(0.0, 0.0, 0.067, -0.5, cruise=0.2)
+        for s in np.arange(0.0, 10.0, 1 / FPS):
+            shown = (0.1, min(s, 0.7)) if 0.2 <= s < 0.8 else second(s)
+            see_stand(p, g, shown)
+        return travel(p, g, model_time(g, 10.0)[0])
+
+    plain = carried(lambda s: None)
+    assert carried(lambda s: (1.5, min(s, 1.6)) if 1.6 <= s < 1.75 else None) == pytest.approx(plain)
+    again = carried(lambda s: (1.5, min(s, 2.5)) if 1.6 <= s < 2.65 else None)
+    assert again == pytest.approx(plain - 0.2 * (1.0 + 0.5), abs=0.02)   # 1 s stood, a brake and start
+                                                                          # (0.25 s each at 0.4 m/s^2), on after
+
+
+@pytest.mark.parametrize("noise", [1e-6, -1e-6])
+def test_a_crawler_still_standing_when_the_wall_is_seen_again_is_where_it_stood(noise):
+    """The frames showed it stop inside the gap, and it stands still when measured again: the
+    measurement ended the stand, not the crawler. Taken as a set-off, a brake was counted twice
+    (-112 mm) or, on noise the other way, the trapezoid halved the gap (-699 mm)."""
+    v, rate, brake_at = 0.3, 0.4, 6.25
+    stop = brake_at + v / rate
+    truth = lambda t: v * min(t, brake_at) + (lambda u: v * u - 0.5 * rate * u * u)(min(max(t - brake_at, 0.0), stop - brake_at))  # noqa: E731
+    bridge, vision, last = GapBridge(), 0.0, None
+    for i in range(int(12 * FPS)):
+        t = i / FPS
+        if 2.0 <= t < 10.0:
+            e = est(t, vision, tracking=False)
+            e.stand = (stop, t) if t >= stop + 0.1 else None
+            out = bridge.update(e)
+            continue
+        if t >= 10.0:
+            vision += (truth(t) - last if last is not None else 0.0) + noise * (i % 2)
+            last = truth(t)
+        else:
+            vision = truth(t)
+        out = bridge.update(est(t, vision, continuous=abs(t - 10.0) > 1e-9, keyframe=i % 10 == 0))
+    assert out.distance_m == pytest.approx(truth(12.0), abs=0.005)
+
+
+@pytest.mark.parametrize("v0", [1e-4, -1e-4])
+def test_a_crawler_standing_as_the_gap_opens_sets_off_to_its_cruise_whatever_its_noise(v0):
+    """A speed of a standing crawler has no direction: after a stand shown it sets off to its
+    cruise either way (it was carried at -1e-4 m/s on noise one way, at 0.2 m/s the other)."""
+    p, g = BridgeParams(), Gap(0.0, 0.0, v0, 0.0, cruise=0.2)
+    for s in np.arange(0.0, 6.0, 1 / FPS):
+        see_stand(p, g, (0.0, min(s, 2.0)) if 0.1 <= s < 2.15 else None)
+    assert g.resumed[1] == 0.2 and travel(p, g, model_time(g, 6.0)[0]) == pytest.approx(0.75, abs=0.05)
+
+
+@pytest.mark.parametrize("fresh", [True, False])
+def test_an_operator_reset_while_blind_bridges_on_from_the_new_count(fresh):
+    """A reset does not stop the crawler: the gap goes on from the new count (it was held, with no
+    sigma: -600 mm over 2 s at 0.3 m/s). Measured across the gap, the odometer (reset too) has the
+    whole gap's motion: the model's part before the reset comes off."""
+    bridge, v = GapBridge(), 0.3
+    for i in range(int(7 * FPS)):
+        t = i / FPS
+        if abs(t - 3.0) < 1e-9:
+            bridge.reset(0.0)                            # the odometer's distance is 0 from here too
+            bridge.offset_m = 0.0
+        if t < 2.0:
+            out = bridge.update(est(t, v * t, keyframe=i % 10 == 0))
+        elif t < 5.0 - 1e-9:
+            out = bridge.update(est(t, v * (2.0 - 1 / FPS) if t < 3.0 else 0.0, tracking=False))
+            assert out.bridged
+        else:
+            seen = v * (t - 5.0) if fresh else v * (t - 2.0 + 1 / FPS)   # the odometer after its reset
+            out = bridge.update(est(t, seen, continuous=not (fresh and abs(t - 5.0) < 1e-9), keyframe=i % 10 == 0))
+    assert out.distance_m == pytest.approx(v * (t - 3.0), abs=0.02)
+    assert out.sigma_m < 0.5
+
+
+def test_a_re_measure_on_the_frame_that_closes_a_reopened_gap_scales_it():
+    """A fresh start inside a gap, lost again at once, then frames measured against it: the gap
+    closes on them with the offset its start set from the model. Tilt auto's re-measure of the
+    epoch on that frame scaled the model but not that offset (-46.5 mm at 15 %)."""
+    k, v = 0.85, 0.3
+
+    def published(fix_i):
+        bridge, vision, fixed = GapBridge(), 0.0, False
+        for i in range(int(4 * FPS)):
+            t = i / FPS
+            if 15 <= i < 45 or i == 46:                  # blind; 45: a fresh start; 46: lost again
+                bridge.update(est(t, vision, tracking=False))
+                continue
+            vision += 0.0 if i in (0, 45) else v / FPS * (1.0 if fixed else k)
+            e = est(t, vision, continuous=i != 45, keyframe=i in (45,) or i % 10 == 0)
+            if not fixed and i >= fix_i:
+                fixed = True
+                e.rescaled_m, e.rescaled_over_m, e.rescaled_since_s = vision * (1 / k - 1), vision / k, 0.0
+                vision += e.rescaled_m
+                e.distance_m = vision
+            out = bridge.update(e)
+        return out.distance_m
+
+    assert published(47) == pytest.approx(published(60), abs=0.002)
