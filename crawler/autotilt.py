@@ -74,6 +74,9 @@ class FixedTilt:
     def record(self, hop: Hop):
         pass
 
+    def new_count(self):
+        pass
+
     def closed(self, continuous: bool, t_s: float):
         pass
 
@@ -174,6 +177,11 @@ class AutoTilt(FixedTilt):
         self._last = hop
         if self._after_break:
             self._break_t, self._after_break = hop.t_s, False
+
+    def new_count(self):
+        """The operator's reset: the epoch's steps so far are the old count's; a better tilt found later
+        measures only the steps after it again (the open one, partly before it, too)."""
+        self.hops = []
 
     def closed(self, continuous: bool, t_s: float):
         """A new keyframe: the last measured step is closed, part of the epoch. One after lost

@@ -52,8 +52,7 @@ class DistanceChain:
 
     def set_distance(self, distance_m: float, vision_m: float):
         """The operator's reset: the published distance is distance_m, the odometer's vision_m."""
-        self.bridge.reset(distance_m)
-        self.bridge.offset_m = distance_m - vision_m
+        self.bridge.reset(distance_m, vision_m)
         if self.fusion is not None:
             self.fusion.set_distance(distance_m, vision_m=vision_m)
 

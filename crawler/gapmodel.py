@@ -67,7 +67,11 @@ class Gap:
         self.cruise = None if self.cruise is None else self.cruise * scale
         self.resumed = None if self.resumed is None else (self.resumed[0], self.resumed[1] * scale, self.resumed[2])
         self.carried_m, self.edges_var = self.carried_m * scale, self.edges_var * scale ** 4   # (v * v / a)^2
-        self.d0, self.vis0 = self.d0 + gain_before_m, self.vis0 + gain_before_m
+        if self.before_reset_m:               # kept over an operator's reset: the count starts there
+            self.d0 -= (scale - 1.0) * self.before_reset_m
+            self.before_reset_m *= scale
+        else:
+            self.d0, self.vis0 = self.d0 + gain_before_m, self.vis0 + gain_before_m
 
 
 def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):

@@ -15,13 +15,11 @@ afresh (its distance does not). This stage turns that into a distance that never
   a speed and lost again, the gap goes on from where it began (the frames after that short start
   are continuous with it); a fresh start that knows its motion over a few frames (`since`) counts
   them as measured, and the speed that settled a gap carries the next one if it opens at once;
-- every estimate carries `sigma_m`, its 1-sigma uncertainty: the measurement's own (closed keyframe
-  steps: the spread of the tracks over their number, and a scale term), the frame's jitter (what
-  moves all tracks at once and so is not in their spread: the camera pitching on a bouncing car,
-  compression; it does not add up over keyframes, as each frame's pose error cancels between the
-  step that ends there and the one that starts there, so it is estimated from the measured distance
-  itself, as its scatter about a straight line), and, for every bridged gap, the motion model's
-  (the speed's error and the speed changes it could not see, as a random walk).
+- every estimate carries `sigma_m`, its 1-sigma uncertainty: the closed keyframe steps' (the tracks'
+  spread over their number, and a scale term), the frame's jitter (what moves all tracks at once:
+  the camera pitching on a bouncing car, compression; each frame's pose error cancels between the
+  steps that end and start there, so it is the measured distance's scatter about a straight line),
+  and every bridged gap's (the speed's error and the changes the model could not see, a random walk).
 
 Pure: no I/O, no clock; fed one odometer estimate per frame.
 """
@@ -85,15 +83,18 @@ class GapBridge:
         """Of the measured part only (closed keyframe steps), for a fusion that bridges gaps itself."""
         return math.sqrt(self.var_meas)
 
-    def reset(self, distance_m: float = 0.0):
-        """The operator's reset: count from here, with no uncertainty carried over. Blind now, the gap
-        goes on being bridged from the new count (a reset does not stop the crawler); the model's
-        travel before the reset is taken off where the gap is measured across."""
-        g, at = (self._gap, self._blind_at) if self._settling is None and self._restarted is None else (None, None)
+    def reset(self, distance_m: float = 0.0, vision_m: float | None = None):
+        """The operator's reset: count from distance_m (the odometer from vision_m), no uncertainty
+        carried over. A gap open now is bridged on from the new count; where it is measured across,
+        the model's travel since the odometer's last start (the gap's, or one inside it) comes off."""
+        g, at, restart = (self._gap, self._blind_at, self._restarted) if self._settling is None else (None,) * 3
         self.__init__(self.p, distance_m)
+        self.offset_m = 0.0 if vision_m is None else distance_m - vision_m
         if g is not None and at is not None:
-            g.before_reset_m, g.d0 = at[1] - g.d0, distance_m - (at[1] - g.d0)
-            self._gap, self._blind_at = g, (at[0], distance_m)
+            pre = at[1] - g.d0
+            g.before_reset_m = pre - (travel(self.p, g, model_time(g, restart[0])[0]) if restart else 0.0)
+            g.d0, g.vis0, self._gap, self._blind_at = (distance_m - pre, g.vis0 if vision_m is None else vision_m,
+                                                       g, (at[0], distance_m))
 
     def update(self, est) -> Bridged:
         """One odometer estimate: t_s, distance_m, speed_m_s, tracking, keyframe, continuous,
@@ -163,8 +164,7 @@ class GapBridge:
         for gap in self._carried:
             if gap[0] >= since:
                 extra, gap[2] = gap[2] * (scale - 1.0), gap[2] * scale
-                self.offset_m += extra
-                self._out_m += extra
+                self.offset_m, self._out_m = self.offset_m + extra, self._out_m + extra
                 if g is not None and g.t0 >= gap[1]:    # the gap open now starts after it: so does its
                     g.d0 += extra                        # distance (its close sets the offset from it)
                 self._hist = deque((t, d + extra if t >= gap[1] else d) for t, d in self._hist)
@@ -301,10 +301,10 @@ class GapBridge:
         see_stand(self.p, g, None)    # measured again: a stand still shown ends (one too short is none)
         T = est.t_s - g.t0
         restarted, self._restarted = self._restarted, None
-        if est.continuous and restarted is None:   # measured across the gap: the odometer's
-            self._gap = None          # distance has it all, and the offset stays as it was before it
-            self.var_meas += self.p.step_floor_m ** 2   # (but for what came before a reset inside it)
-            self.offset_m -= g.before_reset_m
+        if est.continuous and restarted is None:   # measured across the gap: the odometer's distance
+            self._gap = None          # has it all, the offset stays (less what came before a reset in it)
+            self.var_meas, self.offset_m = self.var_meas + self.p.step_floor_m ** 2, self.offset_m - g.before_reset_m
+            self._carry(g.t0, g.t0, -g.before_reset_m)     # (in the epoch's metres: it scales with them)
         elif est.continuous and g.v0 is not None:
             # measured since a fresh start inside the gap (the offset was set then): up to that
             # start the gap is the model's, at the speed before it, and so is its uncertainty

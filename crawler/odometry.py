@@ -82,8 +82,7 @@ class Odometer:
         self._dense.stands.reset()
         self._speed = SpeedFilter(self.params.speed_window_s)
         self._spread = SpreadGate(self.params, self.m_per_px)
-        self._blind_restart = False
-        self._resumed = False      # the keyframe is a saved one: the first match must be clear
+        self._blind_restart, self._resumed = False, False   # _resumed: the keyframe is a saved one (a clear match)
         self._copy = False         # this frame is, inside a gap, the encoder's copy of the last (gates.py)
 
     def set_distance(self, distance: float = 0.0):
@@ -92,6 +91,7 @@ class Odometer:
         if self._kf is not None:
             self._kf.distance += delta
         self._speed.reset()
+        self.pose.new_count()      # tilt auto measures no step from before it again into the new count
 
     def update(self, frame: np.ndarray, t_s: float) -> Estimate:
         """Process one full grey frame (only its ROI is read) taken at t_s seconds."""

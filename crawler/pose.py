@@ -1,26 +1,22 @@
 """The camera's pose from the flow field: its tilt, and each frame's pitch, height and sway. Pure: no I/O.
 
 The odometer measures every frame against a keyframe with one mount (tilt, height below the crown).
-The real camera moves about it: the car bounces (height), pitches (a rotation), and the operator may
-turn the camera (the tilt itself). Each shows in the tracks as a pattern of its own, fixed by the
-geometry (crawler/posefield.py gives, for every feature, how its wall position moves per radian of
-tilt and per metre of height or sway):
+The real camera moves about it: the car bounces (height), pitches, and the operator may turn it (the
+tilt). Each shows in the tracks as a pattern of its own (crawler/posefield.py: how each feature's
+wall position moves per radian of tilt and per metre of height or sway):
 
-- pitch moves every row by about the same number of pixels, whatever the wall's distance, where
-  travel moves them by the wall metres the row sees: the row profile of the flow tells them apart
-  (weakly: a half-frame ROI sees little depth range);
+- pitch moves every row by about the same pixels, where travel moves them by the wall metres the
+  row sees: the row profile of the flow tells them apart (weakly: a half-frame ROI sees little depth);
 - height scales the image about the point above the camera: it spreads the features, travel does not;
-- sway (the car weaving across the pipe) shifts the view along the arc, and in a cylinder also
-  bends it: the rays meet the curved wall at other depths, an axial pattern across the image that,
-  left out, reads as pitch (at 40 deg 2 mm of sway put 0.2 deg of error in every pitch reading);
-- the tilt shows as a profile that grows with the step itself: for a cylinder, the wall metres each
-  row sees depend on the tilt, so a wrong tilt makes far and near features disagree on the step.
+- sway (the car weaving across the pipe) shifts the view along the arc and, in a cylinder, bends it:
+  an axial pattern that, left out, reads as pitch (at 40 deg 2 mm of it: 0.2 deg in every reading);
+- the tilt shows as a profile that grows with the step: a wrong tilt makes far and near features
+  disagree on it (the wall metres each row sees depend on the tilt).
 
 Per frame, the pitch, height and sway of this frame and of its keyframe (a clone of the state when
 the keyframe was taken) are one small Kalman filter, with the jitter, bounce and weave as
-stationary priors. The step the odometer reports is then corrected for the pose of both frames, so
-a bounce, a pitch or a weave is not read as travel. The tilt is configured (FixedTilt) or estimated
-(crawler/autotilt.py). docs/odometry.md, "Pose", has the math.
+stationary priors; the step is corrected for the pose of both frames. The tilt is configured
+(FixedTilt) or estimated (crawler/autotilt.py). docs/odometry.md, "Pose", has the math.
 """
 
 from __future__ import annotations
@@ -82,6 +78,9 @@ class NullPose:
         self.tilt_deg = tilt_deg
 
     def keyframe(self, kf, px, t_s):
+        pass
+
+    def new_count(self):
         pass
 
     def measure(self, kf, c, t_s) -> PoseFix:
@@ -159,11 +158,13 @@ class PoseEstimator:
         self.P[:, N_POSE:] = self.P[:, :N_POSE]
         self.tilt.closed(continuous, t_s)
 
+    def new_count(self):                           # the operator's reset: no step before it measured again
+        self.tilt.new_count()
+
     def measure(self, kf, c, t_s) -> PoseFix:
-        """One measured frame: the odometer's consensus c (crawler/odometry.py) gives the keyframe's
-        inlier indices, their positions now (normalised), their displacements (rows lateral, axial,
-        metres), its robust spread (metres), and the same for every track. The tilt reads every
-        track: the consensus chose its inliers at the tilt it has, and would hide a wrong one."""
+        """One measured frame: the odometer's consensus c (crawler/odometry.py): the keyframe's inlier
+        indices, their positions now, displacements (lateral, axial, metres) and spread, and every
+        track's. The tilt reads every track: the inliers, chosen at its tilt, would hide a wrong one."""
         idx = c.idx
         if kf.pose is None or len(idx) < 3:
             return NO_FIX
@@ -295,12 +296,11 @@ class PoseEstimator:
             flat[at] += sig * sig * qi
 
     def _learn_levels(self, hh, hz, zz, rows, since_kf) -> float | None:
-        """How much the car really pitches, bounces and sways, from this frame's own (prior-free)
-        reading of its pose against the keyframe's: its square, less what its noise alone would
-        give, against what an AR(1) level of unit variance would give over this interval. A smooth
-        run then gets no pitch or height it does not show (each would add its noise to every step),
-        a shaky one up to the configured level. Returns the features' noise, their scatter about
-        that reading (the consensus's spread holds the pose's own pattern: as noise it hid the
+        """How much the car really pitches, bounces and sways: this frame's prior-free reading of its
+        pose against the keyframe's, squared, less what its noise alone gives, against what an AR(1)
+        level of unit variance gives over this interval. A smooth run gets no pitch or height it does
+        not show, a shaky one up to the configured level. Returns the features' noise, their scatter
+        about that reading (the consensus's spread holds the pose's own pattern: as noise it hid the
         pitch), or None where the reading cannot be had."""
         k = self._kept
         dof = rows - 2 - len(k)                    # less the axial and lateral means

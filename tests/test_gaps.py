@@ -881,6 +881,53 @@ def test_an_operator_reset_while_blind_bridges_on_from_the_new_count(fresh):
     assert out.sigma_m < 0.5
 
 
+def test_a_reset_while_blind_after_a_short_start_inside_the_gap_bridges_on_too():
+    """A fresh start inside the gap, lost again at once (the gap reopened), then the reset: it was
+    dropped (held at 0 with no sigma, -600 mm)."""
+    bridge, v = GapBridge(), 0.3
+    for i in range(int(7 * FPS)):
+        t = i / FPS
+        if i < 60:
+            out = bridge.update(est(t, v * t, keyframe=i % 10 == 0))
+        elif i == 75:                                    # 2.5 s: a fresh start, lost again after it
+            out = bridge.update(est(t, v * (2.0 - 1 / FPS), continuous=False, keyframe=True))
+        elif i < 150:
+            if i == 90:
+                bridge.reset(0.0, vision_m=0.0)
+            out = bridge.update(est(t, 0.0 if i >= 90 else v * (2.0 - 1 / FPS), tracking=False))
+            assert out.bridged
+        else:
+            out = bridge.update(est(t, v * (t - 5.0), continuous=i != 150, keyframe=i == 150 or i % 10 == 0))
+    assert out.distance_m == pytest.approx(v * (t - 3.0), abs=0.02)
+
+
+@pytest.mark.parametrize("fresh", [True, False])
+def test_a_gap_kept_over_a_reset_scales_with_a_re_measure_in_the_new_count_only(fresh):
+    """Tilt auto measures its epoch again (x 1.25) after a reset inside a gap: the gap's part before
+    the reset is the old count's, and the epoch's steps before the gap are too (the odometer no
+    longer measures them again into the new count: AutoTilt.new_count). Left unscaled, the part
+    taken off came out 60 mm short; the share before the gap moved the new count by 6 mm."""
+    k, v = 0.8, 0.3
+    bridge, vision, epoch, scale = GapBridge(), 0.0, 0.0, k
+    for i in range(int(7 * FPS)):
+        t = i / FPS
+        if 60 <= i < 150:
+            if i == 90:
+                bridge.reset(0.0, vision_m=0.0)
+                vision, epoch = 0.0, 0.0                 # the odometer's count, and its epoch, start here
+            bridge.update(est(t, vision, tracking=False))
+            continue
+        step = 0.0 if i == 0 or (fresh and i == 150) else (v * (t - 2.0 + 1 / FPS) * scale if i == 150 else v / FPS * scale)
+        vision, epoch = vision + step, epoch + step
+        e = est(t, vision, continuous=not (fresh and i == 150), keyframe=i in (0, 150) or i % 10 == 0)
+        if i == 153:                                     # the first find: the epoch measured again
+            gain = epoch * (1 / k - 1)
+            vision, epoch, scale = vision + gain, epoch + gain, 1.0
+            e.distance_m, e.rescaled_m, e.rescaled_over_m, e.rescaled_since_s = vision, gain, epoch, 0.0
+        out = bridge.update(e)
+    assert out.distance_m == pytest.approx(v * (t - 3.0), abs=0.015)
+
+
 def test_a_re_measure_on_the_frame_that_closes_a_reopened_gap_scales_it():
     """A fresh start inside a gap, lost again at once, then frames measured against it: the gap
     closes on them with the offset its start set from the model. Tilt auto's re-measure of the

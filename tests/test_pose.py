@@ -600,3 +600,24 @@ def test_the_bridge_counts_the_pitch_shown_when_it_is_above_the_configured():
 
     assert last_sigma(0.0) == last_sigma(0.0005) < 0.0015     # below the configured: the configured
     assert last_sigma(0.003) > 0.003                          # above it: what the tracks show
+
+
+def test_an_operator_reset_ends_tilt_auto_s_epoch():
+    """After a reset the distance counts afresh: a better tilt found later measures only the steps
+    since it again (before, the steps of the old count were measured again into the new one)."""
+    from crawler.autotilt import Hop
+    from crawler.geometry import make_projection
+    from crawler.measurement import recording_camera, thesis_roi
+    from crawler.odometry import Odometer
+    from crawler.pose import PoseEstimator, PoseParams
+
+    cam = recording_camera(S.CameraSettings())
+    roi = thesis_roi(cam.width, cam.height)
+    projection = make_projection("cylinder", S.MountSettings(tilt_deg=0.0).mount())
+    pose = PoseEstimator(cam, projection, roi, PoseParams(auto_tilt=True))
+    odometer = Odometer(cam, projection, roi, pose=pose)
+    hop = Hop(1.0, projection, np.zeros((3, 2)), np.zeros((3, 2)), np.zeros(3), (0.0,) * 4, 0.05, 0.01)
+    pose.tilt.hops = [hop, hop]
+    assert pose.tilt.epoch_m == pytest.approx(0.1)
+    odometer.set_distance(0.0)
+    assert pose.tilt.hops == [] and pose.tilt.epoch_m == 0.0
