@@ -58,6 +58,8 @@ class Gap:
     carried_m: float = 0.0            # a braking gap: what it drove between stands shown before that
     open_at_close: bool = False       # a stand was still shown when the wall was measured again
     before_reset_m: float = 0.0       # the model's travel up to an operator's reset inside it
+    rejoin: float | None = None       # a frame measured inside a stand shown, and lost again: when
+    alias: tuple | None = None        # ...and the stand shown again after it: (its since, the kept since)
 
     def measured_again(self, scale: float, gain_before_m: float):
         """Tilt auto measured the steps its speeds came from again (gaps.py): every speed and rate
@@ -74,8 +76,28 @@ class Gap:
             self.d0, self.vis0 = self.d0 + gain_before_m, self.vis0 + gain_before_m
 
 
-def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
-    """Account a blind frame that shows a stand (since, until), or none (crawler/stands.py). The
+_STAND_STATE = ("stand", "confirmed", "stood_s", "before_last", "last_end", "resumed", "edges_var", "edge_s",
+                "held_from")
+REJOIN_S = 0.5                         # a stand shown again this soon after a frame measured inside it is that one
+
+
+def stand_state(g: Gap) -> tuple:
+    """What see_stand keeps of the stands shown, to be put back (`rejoin`)."""
+    return tuple(getattr(g, f) for f in _STAND_STATE)
+
+
+def rejoin(g: Gap, state: tuple, t_s: float):
+    """The gap reopened after one frame measured at t_s (a fresh start, lost again at once) while a
+    stand was shown: the measurement ended the stand, not the crawler. Its state goes back to before,
+    and a stand shown again within REJOIN_S is the same one (taken as a start and a new stand's brake,
+    a frame measured in a 4.5 s stand cost 205 mm at 0.3 m/s)."""
+    for field, value in zip(_STAND_STATE, state):
+        setattr(g, field, value)
+    g.rejoin = t_s
+
+
+def see_stand(p: BridgeParams, g: Gap, stand: tuple | None, t_s: float | None = None):
+    """Account a blind frame (at t_s) that shows a stand (since, until), or none (crawler/stands.py). The
     frames show it from where the crawler stopped to where it set off again; a brake from v at rate a
     covers what v covers in half its time, so the model, which carries v up to the stand, takes it
     to begin v / 2a earlier, and to end as much later for the start out of it. The rate is not seen:
@@ -85,6 +107,14 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None):
     whose model brakes to a stop, its end says when the crawler set off (settled_travel). Until then
     the model holds (its clock stops, nothing is taken back); from then the stand and its brake
     count, and the distance steps back by what the brake was worth."""
+    if g.rejoin is not None and g.stand is not None:   # a frame measured inside the stand shown:
+        if stand is None and t_s is not None and t_s <= g.rejoin + REJOIN_S:
+            return                                      # not shown either way yet, it holds
+        if stand is not None and stand[0] <= g.rejoin + REJOIN_S:
+            g.alias = (stand[0], g.stand[0])            # shown again: the same stand
+        g.rejoin = None
+    if g.alias is not None and stand is not None and stand[0] == g.alias[0]:
+        stand = (g.alias[1], stand[1])
     if g.stand is not None and (stand is None or stand[0] != g.stand[0]):   # it ended
         if g.confirmed:                                # the start out of it
             before = max(0.0, max(g.stand[0], g.t0) - g.t0 - g.stood_s)

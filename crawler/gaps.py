@@ -31,8 +31,8 @@ from collections import deque
 from dataclasses import dataclass
 
 from .consensus import FadingMean, median
-from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, see_stand, set_off, settled_travel,
-                       stops, travel)
+from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, rejoin, see_stand, set_off,
+                       settled_travel, stand_state, stops, travel)
 from .motionfit import is_rescale as _is_rescale, ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured
 from .motionfit import slope as _slope
 
@@ -72,7 +72,7 @@ class GapBridge:
         self._carried: list = []      # [t0, t1, metres] of the gaps the model settled, newest last
         self._cruise = (None, None)   # ((since, speed) of the odometer's speed held steady, (t, speed) of the
                                       # last one held for history_s)
-        self._blind_at = None         # (t, distance published) of the last blind frame, while blind
+        self._blind_at, self._held = None, None   # the last blind frame's (t, distance); the stands shown at a close
 
     @property
     def sigma_m(self) -> float:
@@ -175,8 +175,7 @@ class GapBridge:
         if g is None or g.t0 < since:
             return False
         before = min(max((g.vis0 - (est.distance_m - over)) / old, 0.0), 1.0)   # the epoch's share before it
-        restart = self._restarted
-        carried = 0.0 if restart is None else travel(self.p, g, model_time(g, restart[0])[0])
+        restart, carried = self._restarted, travel(self.p, g, model_time(g, self._restarted[0])[0]) if self._restarted else 0.0
         g.measured_again(scale, gain * before)
         if restart is not None:       # a fresh start inside it set the offset from the model (_close_gap):
             self.offset_m += travel(self.p, g, model_time(g, restart[0])[0]) - carried   # that part scales too
@@ -195,7 +194,7 @@ class GapBridge:
             self._gap = self._open_gap()
             self._gap_prev_var = 0.0
         g = self._gap
-        see_stand(self.p, g, getattr(est, "stand", None))     # (a plain estimate shows none)
+        see_stand(self.p, g, getattr(est, "stand", None), est.t_s)     # (a plain estimate shows none)
         T, stands_var = model_time(g, est.t_s)
         var = model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
@@ -297,7 +296,7 @@ class GapBridge:
 
     def _close_gap(self, est) -> float:
         g = self._gap
-        g.open_at_close = g.stand is not None and g.confirmed
+        g.open_at_close, self._held = g.stand is not None and g.confirmed, stand_state(g)
         see_stand(self.p, g, None)    # measured again: a stand still shown ends (one too short is none)
         T = est.t_s - g.t0
         restarted, self._restarted = self._restarted, None
@@ -355,8 +354,9 @@ class GapBridge:
         if v1 is None:                # reopen: drop what the short measurement added to the history
             while self._hist and self._hist[-1][0] >= t1:
                 self._hist.pop()
-            self._out_m = g.d0
-            self._restarted = samples[0]
+            self._out_m, self._restarted = g.d0, samples[0]
+            if g.open_at_close:       # it stood on: the stand the measurement ended goes on
+                rejoin(g, self._held, t1)
             return
         self._settled_v = (samples[-1][0], v1)
         after = set_off(self.p, g, t1, v_end, a1)          # (a stand shown, a start seen after it)

@@ -952,3 +952,43 @@ def test_a_re_measure_on_the_frame_that_closes_a_reopened_gap_scales_it():
         return out.distance_m
 
     assert published(47) == pytest.approx(published(60), abs=0.002)
+
+
+def test_a_frame_measured_inside_a_stand_shown_does_not_split_it():
+    """One frame measured in the middle of a stand inside a gap (a fresh start, lost again at once):
+    the measurement ended the stand, not the crawler. Taken as a start and a second stand's brake,
+    it cost 205 mm at 0.3 m/s; the stand goes on (gapmodel.rejoin)."""
+    v, rate, brake_at, go = 0.3, 0.4, 2.7, 8.0
+    stop = brake_at + v / rate
+    stood = v * brake_at + v * v / (2 * rate)
+
+    def truth(t):
+        if t < stop:
+            u = max(t - brake_at, 0.0)
+            return v * min(t, brake_at) + v * u - 0.5 * rate * u * u
+        u = max(t - go, 0.0)
+        return stood + (0.5 * rate * u * u if u < v / rate else v * v / (2 * rate) + v * (u - v / rate))
+
+    def published(blip):
+        bridge, vision, last = GapBridge(), 0.0, None
+        for i in range(int(11 * FPS)):
+            t = i / FPS
+            if blip is not None and abs(t - blip) < 1e-9:
+                out = bridge.update(est(t, vision, continuous=False, keyframe=True))
+            elif 2.0 <= t < 10.0:
+                e = est(t, vision, tracking=False)
+                since = stop if blip is None or t < blip else blip + 1 / FPS
+                e.stand = (since, min(t, go)) if since + 0.1 <= t < go + 0.15 else None
+                out = bridge.update(e)
+            else:
+                if t >= 10.0:
+                    vision, last = vision + truth(t) - (truth(t) if last is None else last), truth(t)
+                else:
+                    vision = truth(t)
+                out = bridge.update(est(t, vision, continuous=abs(t - 10.0) > 1e-9, keyframe=i % 10 == 0))
+        return out.distance_m, truth(t)
+
+    d, true = published(None)
+    assert d == pytest.approx(true, abs=0.003)
+    d, true = published(5.0)
+    assert d == pytest.approx(true, abs=0.003)
