@@ -101,7 +101,7 @@ class Odometer:
         try:
             energy = flow.texture_energy(roi)
             self._copy = self._gates.copied(roi, self._unmeasured_since is not None)
-            if not self._gates.textured(energy):
+            if not self._gates.textured(energy) or self._gates.dark(roi):   # (a blackout's noise is texture)
                 return self._untextured(roi, t_s, energy)
             self._dense.reset()
             est = self._start(roi, t_s) if self._kf is None else self._measure(roi, t_s)

@@ -70,6 +70,22 @@ def test_black_frames_are_lost_and_never_integrated(texture):
     assert odo.distance == pytest.approx(offsets[-1] * M_PER_PX, abs=2e-5)
 
 
+def test_a_frame_darker_than_a_fifth_of_the_lit_wall_is_blind_whatever_its_texture(texture):
+    """The texture gate is relative to the wall lately tracked: after a low-contrast one, a blackout
+    frame's noise (a few grey levels that the encoder keeps from frame to frame) passed it, a
+    keyframe was taken on it, and the next dark frames were tracked on that noise and published (a
+    lobe run with a blackout in its wet stretch: -218 mm). A frame darker than a fifth of the lit
+    wall is blind, whatever texture it has: here, after a low-contrast wall, frames at 15 % of the
+    light that pass the texture gate and that a keyframe taken on them would follow."""
+    low = (120 + (texture.astype(np.float32) - 128) * 0.15).clip(0, 255).astype(np.uint8)   # a wet wall
+    offsets = np.arange(110) * 4.0
+    frames = [view(low, off) if not 15 <= i < 75 else (0.15 * view(texture, off).astype(np.float32)).astype(np.uint8)
+              for i, off in enumerate(offsets)]
+    odo, est = run(texture, offsets, frames=frames)
+    assert all(e.tracking for e in est[:15]) and est[-1].tracking
+    assert not any(e.tracking for e in est[15:75])          # (tracked from the 31st on, before)
+
+
 def test_featureless_stretch_holds_then_resumes(texture):
     offsets = np.arange(60) * 10.0
     rng = np.random.default_rng(1)
