@@ -153,7 +153,7 @@ def speed_after_stand(p: BridgeParams, g: Gap) -> float:
     c, v = g.cruise, g.v0
     if c is None or v is None or abs(c) <= abs(v):
         return v
-    return c if c * v > 0 or abs(v) <= p.speed_sigma_m_s else v
+    return c if c * v > 0 or standing(p, v) else v
 
 
 def moving_speed(g: Gap) -> float:
@@ -249,6 +249,16 @@ def travel(p: BridgeParams, g: Gap, T: float) -> float:
     return v0 * faded(p, T) + 0.5 * a * min(T, p.max_bridge_s) ** 2
 
 
+def travel_to(p: BridgeParams, g: Gap, t_s: float) -> float:
+    """What the model carried the crawler from the gap's start to t_s."""
+    return travel(p, g, model_time(g, t_s)[0])
+
+
+def standing(p: BridgeParams, v: float) -> bool:
+    """A speed within a measured speed's own error: a standing crawler, whatever its sign."""
+    return abs(v) <= p.speed_sigma_m_s
+
+
 def faded(p: BridgeParams, T: float) -> float:
     """The model's time at full speed in T: beyond max_bridge_s the speed falls linearly to nothing
     over as long again (never back)."""
@@ -300,11 +310,11 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     ramped = abs(dv) >= p.ramp_dv_m_s
     shown = (g.stood_s > 0 or g.stand is not None) and not braking(g)
     dv_run = v1 - moving_speed(g)
-    if shown and g.open_at_close and abs(v1) <= p.speed_sigma_m_s:
+    if shown and g.open_at_close and standing(p, v1):
         # still standing when the wall was measured again: it never set off (measuring again ended
         # the stand, not the crawler); the model up to where it stood, with no brake out of a start
         return travel(p, g, g.before_last), 0.0
-    if shown and (moving_speed(g) * v1 >= 0 or abs(v1) <= p.speed_sigma_m_s) and abs(dv_run) < drive_rate(p) * T:
+    if shown and (moving_speed(g) * v1 >= 0 or standing(p, v1)) and abs(dv_run) < drive_rate(p) * T:
         # the frames showed it stand and drive again: between the stands it drove at the speed before
         # (after one, at the speed it set off to; the time it stood is not in T), and a change to the
         # speed after came at the end, at the drive's rate (the trapezoid spread a brake measured as
@@ -332,7 +342,7 @@ def _settled_after_stop(p: BridgeParams, g: Gap, T: float, v1: float, a1: float,
     shown = g.last_end - g.t0 if g.last_end is not None and g.stand is None else None
     shown = shown if shown is not None and stop <= shown <= T else None
     before = braked if shown is None else travel(p, g, shown)    # (and what it drove between two stands)
-    if abs(v1) > p.speed_sigma_m_s and a1 * v1 > 0 and T - v1 / a1 >= stop:
+    if not standing(p, v1) and a1 * v1 > 0 and T - v1 / a1 >= stop:
         # braked to a stop, still speeding up when seen again: it started from rest v1 / a1 before,
         # or where the frames showed its stand end, if a drive gets to v1 from there by then (the
         # fitted rate of a start seen for a few frames is rough: 0.30 m/s^2 where it was 0.5)
@@ -340,7 +350,7 @@ def _settled_after_stop(p: BridgeParams, g: Gap, T: float, v1: float, a1: float,
                                   <= p.max_accel_m_s2 * (T - shown + p.shown_end_sigma_s)):
             return before + math.copysign(0.5 * abs(v1) * (T - shown), v1), (0.5 * v1 * p.shown_end_sigma_s) ** 2
         return before + math.copysign(v1 * v1 / (2 * abs(a1)), v1), 0.0
-    if abs(v1) > p.speed_sigma_m_s:
+    if not standing(p, v1):
         # braked to a stop inside the gap, stood, and started again at the same rate up to v1.
         # How long it stood is not in the video: anything from not at all to all the time left,
         # so the middle, with that range's uniform variance; unless the frames showed the stand

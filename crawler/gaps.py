@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 from .consensus import FadingMean, median
 from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, rejoin, see_stand, set_off,
-                       settled_travel, stand_state, stops, travel)
+                       settled_travel, stand_state, stops, travel, travel_to)
 from .motionfit import is_rescale as _is_rescale, ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured
 from .motionfit import slope as _slope
 
@@ -92,7 +92,7 @@ class GapBridge:
         self.offset_m = 0.0 if vision_m is None else distance_m - vision_m
         if g is not None and at is not None:
             pre = at[1] - g.d0
-            g.before_reset_m = pre - (travel(self.p, g, model_time(g, restart[0])[0]) if restart else 0.0)
+            g.before_reset_m = pre - (travel_to(self.p, g, restart[0]) if restart else 0.0)
             g.d0, g.vis0, self._gap, self._blind_at = (distance_m - pre, g.vis0 if vision_m is None else vision_m,
                                                        g, (at[0], distance_m))
 
@@ -175,10 +175,10 @@ class GapBridge:
         if g is None or g.t0 < since:
             return False
         before = min(max((g.vis0 - (est.distance_m - over)) / old, 0.0), 1.0)   # the epoch's share before it
-        restart, carried = self._restarted, travel(self.p, g, model_time(g, self._restarted[0])[0]) if self._restarted else 0.0
+        restart, carried = self._restarted, travel_to(self.p, g, self._restarted[0]) if self._restarted else 0.0
         g.measured_again(scale, gain * before)
-        if restart is not None:       # a fresh start inside it set the offset from the model (_close_gap):
-            self.offset_m += travel(self.p, g, model_time(g, restart[0])[0]) - carried   # that part scales too
+        if restart:                   # a fresh start inside it set the offset from the model (_close_gap):
+            self.offset_m += travel_to(self.p, g, restart[0]) - carried   # that part scales too
             self._restarted = (restart[0], restart[1] + gain * before)
         return True
 
@@ -320,7 +320,7 @@ class GapBridge:
             elif since is not None and g.t0 < since[0] < est.t_s:
                 samples.insert(0, since)  # a fresh start that knows its motion over a few frames
             t1, d1 = samples[0]
-            self.offset_m = g.d0 + travel(self.p, g, model_time(g, t1)[0]) - d1
+            self.offset_m = g.d0 + travel_to(self.p, g, t1) - d1
             self._settling = (t1, samples)
         self._kf_vision = est.distance_m
         return T
