@@ -30,9 +30,10 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from .consensus import FadingMean, median
+from .framenoise import FrameNoise
 from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, rejoin, see_stand, set_off,
                        settled_travel, stand_state, stops, travel, travel_to)
+from .motionfit import TIME_EPS, motion_before, ramp_rate
 from .motionfit import is_rescale as _is_rescale, ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured
 from .motionfit import slope as _slope
 
@@ -64,9 +65,7 @@ class GapBridge:
                                       # the odometer calls continuous after it is continuous with it only
         self._gap_prev_var = 0.0
         self._out_m = distance_m
-        self._jitter = FadingMean(self.p.jitter_memory)   # the frame's pose/compression jitter (m^2)
-        self._pitch_m = 0.0           # the pitch the tracks showed lately (wall metres), if above the configured
-        self._last2: list = []        # the last two measured (t, vision distance), for that
+        self.noise = FrameNoise(self.p)   # the measured frame's own noise, not carried on (framenoise.py)
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
         self._remeasured_at = None    # when the odometer last measured its steps at a new tilt
         self._carried: list = []      # [t0, t1, metres] of the gaps the model settled, newest last
@@ -103,48 +102,9 @@ class GapBridge:
 
     # -- the motion model ------------------------------------------------------------------------------
 
-    def _motion_before(self, t0: float):
-        """(speed, acceleration, its 1-sigma error) at t0 from the recent measured frames (speed
-        None: never measured)."""
-        def short(h):
-            return len(h) < 2 or h[-1][0] - h[0][0] < self.p.min_history_s - _TIME_EPS
-
-        h = _before_a_hole([(t, d) for t, d in self._hist if t >= t0 - self.p.history_s], self.p.min_history_s)
-        if short(h):                  # a gap just before cut the stretch short: the longer memory
-            h = list(self._hist)
-        if short(h):
-            # one frame interval of a video that may be lying (a bad start); but a gap that opens
-            # as the one before it settled goes on at the speed that settled it
-            if self._settled_v is not None and self._settled_v[0] >= t0 - _TIME_EPS:
-                return self._settled_v[1], 0.0, 0.0
-            return None, 0.0, 0.0
-        ts, ds = [t - t0 for t, _ in h], [d for _, d in h]
-        if len(h) < 5 or ts[-1] - ts[0] < 0.5 * self.p.history_s:
-            return _slope(ts, ds), 0.0, 0.0
-        # back in time from t0: a ramp that began inside the window, after a cruise (a quadratic
-        # over the window blurs a late brake). Only a brake is carried into the gap (it ends in a
-        # stop); a crawler speeding up goes on at the speed seen, which the speed after settles.
-        # Distances a remount measured again in the window have the re-measure's shape; a refined
-        # tilt's plain scale (motionfit.is_rescale) is taken out of them, and the ramp is read
-        v_back, a, sa = _ramp(ts, ds, self.p.min_history_s)
-        rate = self._ramp_rate(a, sa)
-        again = self._remeasured_at is not None and self._remeasured_at >= h[0][0]
-        if again or rate is None:
-            return _slope(ts, ds), 0.0, 0.0
-        if a * v_back < 0:            # speeding up: the speed at t0, not the window's mean, which lags
-            return -v_back, 0.0, 0.0, abs(rate)
-        return -v_back, rate, sa
-
-    def _ramp_rate(self, a: float, sa: float) -> float | None:
-        """A fitted rate, clipped to max_accel_m_s2; None if lost in its fit's noise or beyond a
-        drive's reach (a jump in the distances, not a ramp)."""
-        if not max(self.p.min_accel_m_s2, 3 * sa) <= abs(a) <= 1.5 * self.p.max_accel_m_s2:
-            return None
-        return max(-self.p.max_accel_m_s2, min(self.p.max_accel_m_s2, a))
-
     def _open_gap(self) -> Gap:
         t0 = self._hist[-1][0]
-        g = Gap(t0, self._out_m, *self._motion_before(t0))
+        g = Gap(t0, self._out_m, *motion_before(self.p, self._hist, t0, self._settled_v, self._remeasured_at))
         cruise = self._cruise[1]           # (t, speed): one older than the model's horizon is no guide
         g.vis0 = self._out_m - self.offset_m
         g.cruise = cruise[1] if cruise is not None and cruise[0] >= t0 - self.p.max_bridge_s else None
@@ -160,7 +120,7 @@ class GapBridge:
         since, old = getattr(est, "rescaled_since_s", None), over - gain
         if since is None or abs(old) < _MIN_EPOCH_M or not 0.5 <= over / old <= 2.0:
             return False
-        scale, since, g = over / old, since - _TIME_EPS, self._gap
+        scale, since, g = over / old, since - TIME_EPS, self._gap
         for gap in self._carried:
             if gap[0] >= since:
                 extra, gap[2] = gap[2] * (scale - 1.0), gap[2] * scale
@@ -185,7 +145,7 @@ class GapBridge:
     # -- blind ----------------------------------------------------------------------------------------
 
     def _blind(self, est) -> Bridged:
-        self._last2 = []
+        self.noise.lost()
         if self._settling is not None:    # the measurement since the gap was too short: it goes on
             self._settle_or_reopen()
         if self._gap is None:
@@ -201,8 +161,8 @@ class GapBridge:
         self._gap_prev_var = var
         out = g.d0 + travel(self.p, g, T)
         self._blind_at = (est.t_s, out)
-        jitter = self._jitter.value + max(self.p.pose_sigma_m, self._pitch_m) ** 2
-        return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + jitter), True, step, est.t_s - g.t0)
+        return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + self.noise.pose_var), True, step,
+                       est.t_s - g.t0)
 
     # -- measured -------------------------------------------------------------------------------------
 
@@ -232,9 +192,8 @@ class GapBridge:
                 self._remeasured_at = est.t_s
         if self._kf_vision is None:
             self._kf_vision = est.distance_m
-        self._track_jitter(est)
+        self.noise.track(est)
         self._track_cruise(est)
-        self._pitch_m = getattr(est, "pitch_m", 0.0)    # (a plain estimate has none)
         step_var = self._step_var(est)
         if est.keyframe:              # the keyframe's step is closed: its error is carried from now on
             self.var_meas += step_var
@@ -245,34 +204,12 @@ class GapBridge:
         self._hist.append((est.t_s, self._out_m))
         while self._hist and self._hist[0][0] < est.t_s - 2 * self.p.history_s:
             self._hist.popleft()
-        jitter = self._jitter.value + max(self.p.pose_sigma_m, self._pitch_m) ** 2
-        total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var) + jitter
+        total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var) + self.noise.pose_var
         if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
             g = self._gap
             T, stands_var = model_time(g, self._settling[0])
             total += model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var
-        # for the fusion: the white part only (the pose term is slow, a filter must not average it)
-        noise = math.hypot(self._frame_noise(est), math.sqrt(self._jitter.value))
-        return Bridged(self._out_m, math.sqrt(total), False, noise, gap_T)
-
-    def _track_jitter(self, est):
-        """The measured distance's scatter about a straight line over three frames in a row: the
-        residual of the third against the line through the first two has 1 + (1 + r)^2 + r^2 times
-        the frame's variance (r: the ratio of the intervals). Accelerations count too, which errs
-        on the safe side."""
-        if not est.continuous:
-            self._last2 = []
-        self._last2.append((est.t_s, est.distance_m))
-        if len(self._last2) < 3:
-            return
-        (t0, d0), (t1, d1), (t2, d2) = self._last2[-3:]
-        del self._last2[0]
-        if t1 <= t0 or t2 <= t1:
-            return
-        r = (t2 - t1) / (t1 - t0)
-        resid2 = (d2 - d1 - (d1 - d0) * r) ** 2 / (1 + (1 + r) ** 2 + r * r)
-        v = self._jitter.value
-        self._jitter.add(min(resid2, 9 * v) if v > 0 else resid2)    # one bad frame does not set the level
+        return Bridged(self._out_m, math.sqrt(total), False, self.noise.white(est), gap_T)
 
     def _track_cruise(self, est):
         """The drive's cruise: the odometer's speed, held within 5 % (or 1 cm/s) for history_s. A
@@ -285,14 +222,10 @@ class GapBridge:
         elif est.t_s - since[0] >= self.p.history_s:
             self._cruise = (since, (est.t_s, v))
 
-    def _frame_noise(self, est) -> float:
-        spread = (est.spread_mm or 0.0) / 1000.0
-        return max(spread / math.sqrt(max(est.inliers, 1)), self.p.step_floor_m)
-
     def _step_var(self, est) -> float:
         """The current keyframe step's variance: the tracks' noise, and the scale over the step."""
         step = abs(est.distance_m - self._kf_vision)
-        return self._frame_noise(est) ** 2 + (self.p.scale_sigma * step) ** 2
+        return self.noise.tracks(est) ** 2 + (self.p.scale_sigma * step) ** 2
 
     def _close_gap(self, est) -> float:
         g = self._gap
@@ -334,7 +267,7 @@ class GapBridge:
         # all of the gap alone, and the first frames seen again are the least sure (the wall half wet
         # or half lit): one frame interval's reading, times a gap of seconds over it, is anything
         span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
-        enough = span >= self.p.min_history_s - _TIME_EPS
+        enough = span >= self.p.min_history_s - TIME_EPS
         v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if enough else None
         (T, stands_var), v_end, a1 = model_time(g, t1), v1, 0.0
         stopped = stops(g, T) is not None
@@ -345,7 +278,7 @@ class GapBridge:
             ts, ds = [t - t1 for t, _ in samples], [d for _, d in samples]
             v, a, sa = _ramp(ts, ds, self.p.min_history_s)
             drive = math.copysign(g.a0, v1)       # the braking's rate, the way it moves after
-            if (rate := self._ramp_rate(a, sa)) is not None:
+            if (rate := ramp_rate(self.p, a, sa)) is not None:
                 v_end, a1 = v, rate
             elif stopped and (v := _ramp_at(ts, ds, drive)) is not None:
                 v_end, a1 = v, drive
@@ -380,21 +313,6 @@ class GapBridge:
         del self._carried[:-_MAX_CARRIED]
 
 
-def _before_a_hole(h: list, min_s: float) -> list:
-    """The window's samples a speed and a rate are read from. A frame measured across lost frames
-    and lost again within min_s (caught between two gaps, at the edge of what the camera can see)
-    gives the distance, not the motion's shape: one such frame read 2.6 mm short at a wet stretch's
-    edge was fitted as a brake, and the gap after it carried to a stop (a lobe run: -27.7 %). The
-    samples before the hole give the shape, as a speed needs min_s of measuring after any gap."""
-    ts = [t for t, _ in h]
-    if len(ts) < 6:
-        return h
-    frame = median([b - a for a, b in zip(ts, ts[1:])])
-    k = max((i + 1 for i in range(len(ts) - 1) if ts[i + 1] - ts[i] > 1.5 * frame), default=0)
-    return h[:k] if k >= 5 and ts[-1] - ts[k] < min_s - _TIME_EPS else h
-
-
-_TIME_EPS = 1e-6                  # frame times are sums of intervals: 3 / 30 s may come out under 0.1 s
 _MIN_EPOCH_M = 0.02               # an epoch's scale is read from its metres: over less, from their noise
 _MAX_CARRIED = 64                 # gaps remembered for that scale (tilt auto's epoch keeps 400 steps)
 _MIN_CRUISE_M_S = 0.02            # a speed below this is a crawl or a stand's noise, no cruise
