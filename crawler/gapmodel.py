@@ -308,7 +308,9 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     # other end's speed, when the change is more than the speeds' own errors could make
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0
     ramped = abs(dv) >= p.ramp_dv_m_s
-    shown = (g.stood_s > 0 or g.stand is not None) and not braking(g)
+    # a stand the frames showed, or a set-off as the gap opened (gaps.py) that the speed after bears out
+    off = g.resumed is not None and v1 * g.v0 > 0 and abs(v1) - abs(g.v0) >= p.ramp_dv_m_s
+    shown = (g.stood_s > 0 or g.stand is not None or off) and not braking(g)
     dv_run = v1 - moving_speed(g)
     if shown and g.open_at_close and standing(p, v1):
         # still standing when the wall was measured again: it never set off (measuring again ended

@@ -31,8 +31,8 @@ from collections import deque
 from dataclasses import dataclass
 
 from .framenoise import FrameNoise
-from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, rejoin, see_stand, set_off,
-                       settled_travel, stand_state, stops, travel, travel_to)
+from .gapmodel import (BridgeParams, Gap, drive_rate, model_time, model_var, moving_speed, rejoin, see_stand,
+                       set_off, settled_travel, stand_state, standing, stops, travel, travel_to)
 from .motionfit import TIME_EPS, motion_before, ramp_rate
 from .motionfit import is_rescale as _is_rescale, ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured
 from .motionfit import slope as _slope
@@ -72,6 +72,7 @@ class GapBridge:
         self._cruise = (None, None)   # ((since, speed) of the odometer's speed held steady, (t, speed) of the
                                       # last one held for history_s)
         self._blind_at, self._held = None, None   # the last blind frame's (t, distance); the stands shown at a close
+        self._still, self._stood = None, None     # (since, until, distance) the output stands at; the last stand
 
     @property
     def sigma_m(self) -> float:
@@ -108,7 +109,34 @@ class GapBridge:
         cruise = self._cruise[1]           # (t, speed): one older than the model's horizon is no guide
         g.vis0 = self._out_m - self.offset_m
         g.cruise = cruise[1] if cruise is not None and cruise[0] >= t0 - self.p.max_bridge_s else None
+        self._setting_off(g, t0)
         return g
+
+    def _setting_off(self, g: Gap, t0: float):
+        """A gap that opens as the crawler sets off out of a stand (it stood for min_stand_s up to
+        SET_OFF_S before, and moves now, slower than its cruise the same way): it drives on to its
+        cruise at the drive's rate, as after a stand the frames showed (gapmodel.speed_after_stand).
+        Carried at the speed of its first frames, an independent stress run's set-off onto a wet
+        wall was bridged at 0.008 m/s for 2 s where it drove at 0.3."""
+        p, stood, c, v = self.p, self._stood, g.cruise, g.v0
+        if stood is None or c is None or v is None or t0 - stood[1] > SET_OFF_S or standing(p, v):
+            return
+        if g.a0 * v < 0 or v * c <= 0 or abs(v) >= 0.5 * abs(c):
+            return
+        g.resumed = (abs(c - v) / (2 * drive_rate(p)), c, math.inf)
+        quick, gentle = (abs(c - v) / (2 * rate) for rate in (p.max_accel_m_s2, p.min_drive_accel_m_s2))
+        g.edges_var += (c * (gentle - quick)) ** 2 / 12.0     # the start's rate (a few frames' fit is rough)
+
+    def _watch_still(self, t: float, out: float):
+        """The published distance standing (within what a standing speed moves in min_stand_s): the
+        last stand it showed for min_stand_s, for a gap that opens as the crawler sets off."""
+        p, still = self.p, self._still
+        if still is None or abs(out - still[2]) > p.speed_sigma_m_s * p.min_stand_s:
+            self._still = (t, t, out)
+            return
+        self._still = (still[0], t, still[2])
+        if t - still[0] >= p.min_stand_s - TIME_EPS:
+            self._stood = (still[0], t)
 
     def _measured_again(self, est, gain: float, over: float):
         """Tilt auto measured its epoch's steps again at a better tilt (crawler/autotilt.py). A gap
@@ -161,6 +189,7 @@ class GapBridge:
         self._gap_prev_var = var
         out = g.d0 + travel(self.p, g, T)
         self._blind_at = (est.t_s, out)
+        self._watch_still(est.t_s, out)
         return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + self.noise.pose_var), True, step,
                        est.t_s - g.t0)
 
@@ -209,6 +238,7 @@ class GapBridge:
             g = self._gap
             T, stands_var = model_time(g, self._settling[0])
             total += model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var
+        self._watch_still(est.t_s, self._out_m)
         return Bridged(self._out_m, math.sqrt(total), False, self.noise.white(est), gap_T)
 
     def _track_cruise(self, est):
@@ -316,3 +346,4 @@ class GapBridge:
 _MIN_EPOCH_M = 0.02               # an epoch's scale is read from its metres: over less, from their noise
 _MAX_CARRIED = 64                 # gaps remembered for that scale (tilt auto's epoch keeps 400 steps)
 _MIN_CRUISE_M_S = 0.02            # a speed below this is a crawl or a stand's noise, no cruise
+SET_OFF_S = 0.5                   # a gap that opens this soon after a stand may open on a set-off
