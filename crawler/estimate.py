@@ -42,6 +42,8 @@ class Estimate:
     pitch_m: float = 0.0              # the car's pitch the tracks show, as wall metres (crawler/pose.py): what
                                       # it moves a frame's distance by, when the estimate cannot follow it
     stand: tuple | None = None        # blind on a faint wall whose frames show a stand: (since, until) (stands.py)
+    changed: bool = False             # blind as the lit picture changed (tracks gone, texture faded): a
+                                      # standing crawler's does not (a gap opening so is a set-off, gaps.py)
     # filled in after the odometer (crawler/distance.py): the published distance's uncertainty and origin
     sigma_m: float | None = None
     bridged: bool = False
@@ -53,7 +55,8 @@ class Estimate:
 
     def as_dict(self) -> dict:
         d = dict(self.__dict__)
-        for k in ("rescaled_m", "rescaled_over_m", "rescaled_since_s", "since", "scale_sigma_m", "texture_dn", "pitch_m", "stand"):
+        for k in ("rescaled_m", "rescaled_over_m", "rescaled_since_s", "since", "scale_sigma_m", "texture_dn", "pitch_m", "stand",
+                  "changed"):
             del d[k]                  # internal: sigma_m holds what they say
         for k in ("distance_m", "lateral_m"):
             d[k] = round(d[k], 6)

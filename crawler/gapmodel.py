@@ -58,6 +58,7 @@ class Gap:
     carried_m: float = 0.0            # a braking gap: what it drove between stands shown before that
     open_at_close: bool = False       # a stand was still shown when the wall was measured again
     before_reset_m: float = 0.0       # the model's travel up to an operator's reset inside it
+    either_way: bool = False          # it set off as it opened, which way not seen (gaps.py _setting_off)
     rejoin: float | None = None       # a frame measured inside a stand shown, and lost again: when
     alias: tuple | None = None        # ...and the stand shown again after it: (its since, the kept since)
 
@@ -309,7 +310,8 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0
     ramped = abs(dv) >= p.ramp_dv_m_s
     # a stand the frames showed, or a set-off as the gap opened (gaps.py) that the speed after bears out
-    off = g.resumed is not None and v1 * g.v0 > 0 and abs(v1) - abs(g.v0) >= p.ramp_dv_m_s
+    seen = p.min_drive_accel_m_s2 <= g.up <= p.max_accel_m_s2     # (a start's rate seen: read at it below)
+    off = g.resumed is not None and not seen and v1 * g.resumed[1] > 0 and abs(v1) - abs(g.v0) >= p.ramp_dv_m_s
     shown = (g.stood_s > 0 or g.stand is not None or off) and not braking(g)
     dv_run = v1 - moving_speed(g)
     if shown and g.open_at_close and standing(p, v1):

@@ -103,29 +103,38 @@ class GapBridge:
 
     # -- the motion model ------------------------------------------------------------------------------
 
-    def _open_gap(self) -> Gap:
+    def _open_gap(self, est=None) -> Gap:
         t0 = self._hist[-1][0]
         g = Gap(t0, self._out_m, *motion_before(self.p, self._hist, t0, self._settled_v, self._remeasured_at))
         cruise = self._cruise[1]           # (t, speed): one older than the model's horizon is no guide
         g.vis0 = self._out_m - self.offset_m
         g.cruise = cruise[1] if cruise is not None and cruise[0] >= t0 - self.p.max_bridge_s else None
-        self._setting_off(g, t0)
+        self._setting_off(g, t0, est if getattr(est, "changed", False) else None)
         return g
 
-    def _setting_off(self, g: Gap, t0: float):
+    def _setting_off(self, g: Gap, t0: float, est):
         """A gap that opens as the crawler sets off out of a stand (it stood for min_stand_s up to
         SET_OFF_S before, and moves now, slower than its cruise the same way): it drives on to its
         cruise at the drive's rate, as after a stand the frames showed (gapmodel.speed_after_stand).
         Carried at the speed of its first frames, an independent stress run's set-off onto a wet
-        wall was bridged at 0.008 m/s for 2 s where it drove at 0.3."""
+        wall was bridged at 0.008 m/s for 2 s where it drove at 0.3. One that opens on a stand, as
+        the lit picture changed (`est.changed`: a standing crawler's does not), set off between the
+        last still frame and that one (frames dropped between them: any time in the drop, so its
+        middle), the way it is not seen: its cruise's, either way in its sigma (`either_way`)."""
         p, stood, c, v = self.p, self._stood, g.cruise, g.v0
-        if stood is None or c is None or v is None or t0 - stood[1] > SET_OFF_S or standing(p, v):
+        if stood is None or c is None or v is None or t0 - stood[1] > SET_OFF_S or standing(p, c):
             return
-        if g.a0 * v < 0 or v * c <= 0 or abs(v) >= 0.5 * abs(c):
+        late = 0.0                    # when it set off, after t0
+        if standing(p, v):
+            if est is None or not est.changed or t0 - stood[1] > TIME_EPS:
+                return
+            g.either_way, late = True, (est.t_s - t0) / 2
+        elif g.a0 * v < 0 or v * c <= 0 or abs(v) >= 0.5 * abs(c):
             return
-        g.resumed = (abs(c - v) / (2 * drive_rate(p)), c, math.inf)
+        seen = p.min_drive_accel_m_s2 <= g.up <= p.max_accel_m_s2     # a start's rate the frames showed
+        g.resumed = (late + abs(c - v) / (2 * (g.up if seen else drive_rate(p))), c, math.inf)
         quick, gentle = (abs(c - v) / (2 * rate) for rate in (p.max_accel_m_s2, p.min_drive_accel_m_s2))
-        g.edges_var += (c * (gentle - quick)) ** 2 / 12.0     # the start's rate (a few frames' fit is rough)
+        g.edges_var += (c * (gentle - quick)) ** 2 / 12.0 + (c * late) ** 2 / 3.0   # its rate, and when
 
     def _watch_still(self, t: float, out: float):
         """The published distance standing (within what a standing speed moves in min_stand_s): the
@@ -179,12 +188,14 @@ class GapBridge:
         if self._gap is None:
             if not self._hist:            # never measured yet: nothing to carry
                 return Bridged(self._out_m, self.sigma_m, False, self.p.step_floor_m)
-            self._gap = self._open_gap()
+            self._gap = self._open_gap(est)
             self._gap_prev_var = 0.0
         g = self._gap
         see_stand(self.p, g, getattr(est, "stand", None), est.t_s)     # (a plain estimate shows none)
         T, stands_var = model_time(g, est.t_s)
         var = model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var
+        if g.either_way:              # a set-off whose way is not seen: the other way is twice as far
+            var += (travel(self.p, g, T) - g.v0 * T) ** 2
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
         out = g.d0 + travel(self.p, g, T)

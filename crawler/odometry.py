@@ -280,6 +280,7 @@ class Odometer:
     def _measure(self, img, t_s, rescue: bool = True) -> Estimate:
         (idx, pts1, n_visible), p, kf = self._track_guessed(img, t_s), self.params, self._kf
         c = self._consensus(idx, pts1, t_s) if len(idx) >= p.min_tracks else None
+        changed = c is None                   # the tracks are gone: the picture changed, unless refused below
         clear = c is not None and (not self._resumed or reacquired(c, n_visible, p, self.m_per_px))
         morphed = c is not None and self._gates.morphed(kf, img, kf.distance + c.step, p.still_px * self.m_per_px)
         mute = self._copy or (c is not None and self._gates.tracks_say_nothing(
@@ -293,7 +294,7 @@ class Odometer:
                 if self._new_keyframe(self._good_roi, self._last_good_t, owned=True):
                     return self._measure(img, t_s, rescue=False)
                 self._kf = kf
-            return self._lost(img, t_s, len(idx), n_visible)
+            return self._lost(img, t_s, len(idx), n_visible, changed)
         return self._accept(img, t_s, c, len(idx))
 
     def _accept(self, img, t_s, c: Consensus, n_tracked: int) -> Estimate:
@@ -332,11 +333,11 @@ class Odometer:
             est.keyframe = self._new_keyframe(self._good_roi, t_s, owned=True)
         return est
 
-    def _blind(self, t_s) -> Estimate:
+    def _blind(self, t_s, changed: bool = False) -> Estimate:
         """A frame with nothing to measure (dark, featureless): lost, the keyframe kept for later."""
         self.lost_frames, self._prev_pts = self.lost_frames + 1, None
         self._unmeasured_since = t_s if self._unmeasured_since is None else self._unmeasured_since
-        return self._estimate(t_s, False, 0, 0, None, keyframe=False)
+        return self._estimate(t_s, False, 0, 0, None, keyframe=False, changed=changed)
 
     def _untextured(self, roi, t_s, energy: float) -> Estimate:
         """Too little texture for features: the dense shift, if the wall is lit and it finds one."""
@@ -347,7 +348,7 @@ class Odometer:
         found = self._dense.shift(roi, t_s)
         dt = t_s - self._prev_t if self._prev_t is not None else 0.0
         if found is None or dt <= 0:
-            return self._blind(t_s)
+            return self._blind(t_s, changed=True)     # lit, but the texture faded
         (du, dv), response, since_s = found
         jyv, jyu, jsv, jsu = self._dense_jac
         step, lat = jyv * dv + jyu * du, jsv * dv + jsu * du
@@ -371,11 +372,10 @@ class Odometer:
             est.since = (since_s, self.distance - step)
         return est
 
-    def _lost(self, img, t_s, n_tracked, n_visible) -> Estimate:
+    def _lost(self, img, t_s, n_tracked, n_visible, changed: bool = False) -> Estimate:
         """No consensus: hold the distance, keep the keyframe a while, else start from this frame."""
         self.lost_frames, self._prev_pts = self.lost_frames + 1, None
-        if self._unmeasured_since is None:
-            self._unmeasured_since = t_s
+        self._unmeasured_since = t_s if self._unmeasured_since is None else self._unmeasured_since
         renewed, p = False, self.params
         if self.lost_frames > p.max_lost_frames or t_s - self._last_good_t > p.max_lost_s or n_visible < p.min_tracks:
             renewed = self._new_keyframe(img, t_s)
@@ -383,7 +383,7 @@ class Odometer:
             self._velocity = self._gates.v_ref or 0.0
             self._speed.reset()
             self._blind_restart = True        # the motion from the last tracked frame to here is unknown
-        return self._estimate(t_s, False, n_tracked, 0, None, keyframe=renewed)
+        return self._estimate(t_s, False, n_tracked, 0, None, keyframe=renewed, changed=changed)
 
     def _estimate(self, t_s, tracking, n_tracked, n_in, sigma, keyframe, **more) -> Estimate:
         share = n_in / n_tracked if n_tracked else 0.0

@@ -84,6 +84,22 @@ def test_a_frame_darker_than_a_fifth_of_the_lit_wall_is_blind_whatever_its_textu
     odo, est = run(texture, offsets, frames=frames)
     assert all(e.tracking for e in est[:15]) and est[-1].tracking
     assert not any(e.tracking for e in est[15:75])          # (tracked from the 31st on, before)
+    assert not any(e.changed for e in est[15:75])           # the light went: no news of the motion
+
+
+def test_blind_as_the_lit_picture_changes_says_so_a_blackout_does_not(texture):
+    """A standing crawler's lit picture does not change: tracks that vanish, or a texture that fades
+    while lit, mean the wall moved under the camera (a gap that opens on a stand so is a set-off,
+    crawler/gaps.py); a dark frame says nothing of the motion, nor does a stand's tracks refused."""
+    offsets = np.r_[np.zeros(20), np.arange(1, 21) * 6.0]
+    wet = (120 + (texture.astype(np.float32) - 128) * 0.05).clip(0, 255).astype(np.uint8)     # 5 % of the grain
+    frames = [None] * 20 + [view(wet, off) for off in offsets[20:]]
+    odo, est = run(texture, offsets, frames=frames)
+    assert all(e.tracking and not e.changed for e in est[:20])
+    assert not est[20].tracking and est[20].changed           # set off onto a faint wall
+    dark = [None] * 20 + [(0.1 * view(texture, 0.0)).astype(np.uint8)] * 5
+    odo, est = run(texture, np.zeros(25), frames=dark)
+    assert not any(e.tracking or e.changed for e in est[20:])
 
 
 def test_featureless_stretch_holds_then_resumes(texture):
