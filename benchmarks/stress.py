@@ -1,7 +1,8 @@
 """Stress suite for "never lose distance": hw_sim runs with one hard disturbance each, replayed by crawlerd.
 
     python benchmarks/stress.py [--out DIR] [--jobs N] [--cases a,b] [--markdown] [--set SECTION.KEY=VALUE]
-                                [--reseed N] [--wall skimage:brick|IMAGE] [--held-out | --probes | --lobes | --stops]
+                                [--reseed N] [--wall skimage:brick|IMAGE]
+                                [--held-out | --probes | --lobes | --stops | --independent]
 
 Each case renders once (cached in --out; the .csv keeps the true tilt, camera height, LED light, wet
 share and lost frames per frame) and is replayed with crawlerd's Daemon as `crawlerd --replay` would
@@ -146,6 +147,11 @@ STOPS = {
 }
 CASES.update({name: (fields, []) for name, fields in STOPS.items()})
 
+# independent (--independent): two reviewers' sets, written without seeing the cases above
+from independent import INDEPENDENT  # noqa: E402
+
+CASES.update(INDEPENDENT)
+
 
 def replay(h264: Path, overrides: list[str], log: Path) -> dict:
     from crawler import settings
@@ -214,6 +220,8 @@ def main(argv=None):
                     help="the lobe runs instead: wet stretches under the LED's highlight, from a crawl to a walk")
     ap.add_argument("--stops", action="store_true",
                     help="the stop runs instead: a crawler that stops and goes inside the lobes' wet stretches")
+    ap.add_argument("--independent", action="store_true",
+                    help="two reviewers' independent sets instead (benchmarks/independent.py)")
     ap.add_argument("--wall", metavar="IMAGE",
                     help="every case on this photographed wall instead of its own texture: a grey image "
                          "file, or skimage:brick|gravel|grass (a held-out check)")
@@ -227,11 +235,13 @@ def main(argv=None):
         out = out / "lobes"
     if args.stops:
         out = out / "stops"
+    if args.independent:
+        out = out / "independent"
 
     out.mkdir(parents=True, exist_ok=True)
     names = (args.cases.split(",") if args.cases else list(HELD_OUT) if args.held_out
              else list(PROBES) if args.probes else list(LOBES) if args.lobes
-             else list(STOPS) if args.stops else MAIN)
+             else list(STOPS) if args.stops else list(INDEPENDENT) if args.independent else MAIN)
     t0 = time.time()
     rows = []
     with ProcessPoolExecutor(args.jobs) as pool:

@@ -1,0 +1,223 @@
+"""Independent stress sets (`benchmarks/stress.py --independent`): runs written by reviewers who had
+not seen the cases above, to find what the suite's own runs miss. Kept as they were found.
+
+name -> (hw_sim SimConfig fields, crawlerd --set overrides). Wet stretches are metres along the
+pipe; the camera at tilt T sees the wall around y + H tan(T) ahead of itself (`view`). A stopgo run
+with speed v, accel a, period P, dwell D covers L = v (P - D - v/a) each go and stands at k L during
+[k P - D, k P] (`stand`); reverse drives forward 40 % of the run and back 60 %. No crawler import.
+"""
+
+import math
+
+SHAKE = dict(bounce_mm=1.0, pitch_jitter_deg=0.3, roll_deg=2.0, sway_mm=1.5)
+LIT = dict(lighting=True, vignetting=True, noise_sigma=1.5)
+AUTO = ["mount.tilt_deg=auto"]
+H_M = 0.2256                      # the mount's camera height below the crown (the default mount)
+
+
+def wall_image(image):
+    return dict(texture="image", texture_image=image, image_mm_per_px=0.4)
+
+
+def view(tilt_deg):
+    """How far ahead of the camera the image centre meets the crown (m)."""
+    return H_M * math.tan(math.radians(tilt_deg))
+
+
+def stand(v, a, period, dwell, k):
+    """(position m, stand start s, stand end s) of the k-th stand of a stopgo run."""
+    go = period - dwell
+    ramp = min(v / a, go / 2)
+    return k * a * ramp * (go - ramp), k * period - dwell, k * period
+
+
+FIRST = {  # session 12, a first reviewer: seeds 7001-7020
+    # --- one disturbance each ---
+    "i-wet-lit-15deg-0.25": (dict(tilt_deg=15, speed_m_s=0.25, duration_s=14, seed=7001,
+                                  wet_patches=((1.0, 1.8),), wet_highlight=1.5, **LIT), []),
+    "i-wet-lit-masonry-32deg-0.5": (dict(tilt_deg=32, speed_m_s=0.5, duration_s=12, seed=7002, texture="masonry",
+                                         wet_patches=((2.0, 3.2),), wet_contrast=0.03, **LIT), []),
+    "i-blackout-1.5s-15deg-0.3": (dict(tilt_deg=15, speed_m_s=0.3, duration_s=12, seed=7003, exposure_ms=2.0,
+                                       led_blackouts=((4.0, 5.5),), **LIT), []),
+    "i-blackout-0.3s-32deg-0.7": (dict(tilt_deg=32, speed_m_s=0.7, duration_s=12, seed=7004, exposure_ms=2.0,
+                                       led_blackouts=((3.0, 3.3), (8.0, 8.3)), **LIT), []),
+    "i-drop-40f-0deg-0.5": (dict(tilt_deg=0, speed_m_s=0.5, duration_s=12, seed=7005,
+                                 dropped_bursts=((5.0, 6.33),)), []),
+    "i-drop-5f-32deg-0.8": (dict(tilt_deg=32, speed_m_s=0.8, duration_s=12, seed=7006,
+                                 dropped_bursts=((3.0, 3.17), (6.0, 6.17), (9.0, 9.17))), []),
+    "i-crf37-masonry-shake-0deg-0.2": (dict(tilt_deg=0, speed_m_s=0.2, duration_s=15, seed=7007, texture="masonry",
+                                            crf=37, **SHAKE), []),
+    "i-crf40-masonry-shake-32deg-0.7": (dict(tilt_deg=32, speed_m_s=0.7, duration_s=10, seed=7008,
+                                             texture="masonry", crf=40, **SHAKE), []),
+    "i-photo-brick-15deg-0.4": (dict(tilt_deg=15, speed_m_s=0.4, duration_s=12, seed=7009,
+                                     **wall_image("skimage:brick")), []),
+    "i-photo-grass-32deg-0.15": (dict(tilt_deg=32, speed_m_s=0.15, duration_s=16, seed=7010,
+                                      **wall_image("skimage:grass")), []),
+    "i-accel-0deg-0.8": (dict(tilt_deg=0, profile="accel", speed_m_s=0.8, accel_m_s2=0.15, duration_s=14,
+                              seed=7011), []),
+    "i-accel-40deg-0.5": (dict(tilt_deg=40, profile="accel", speed_m_s=0.5, accel_m_s2=0.3, duration_s=12,
+                               seed=7013), []),
+    "i-reverse-15deg-0.3": (dict(tilt_deg=15, profile="reverse", speed_m_s=0.3, accel_m_s2=0.5, duration_s=14,
+                                 seed=7012), []),
+    "i-reverse-24deg-0.6": (dict(tilt_deg=24, profile="reverse", speed_m_s=0.6, accel_m_s2=0.8, duration_s=12,
+                                 seed=7014, texture="masonry"), []),
+    # --- everything at once ---
+    "i-aao-stopgo-15deg-0.3": (dict(tilt_deg=15, profile="stopgo", speed_m_s=0.3, accel_m_s2=0.6,
+                                    stopgo_period_s=3.5, stopgo_dwell_s=1.0, duration_s=18, seed=7015,
+                                    texture="masonry", crf=36, wet_patches=((1.2, 1.7),),
+                                    led_blackouts=((6.2, 6.9),), dropped_bursts=((11.5, 12.0),),
+                                    exposure_ms=2.0, **SHAKE, **LIT), []),
+    "i-aao-reverse-brick-32deg-0.5": (dict(tilt_deg=32, profile="reverse", speed_m_s=0.5, accel_m_s2=0.7,
+                                           duration_s=16, seed=7016, crf=35, wet_patches=((1.5, 2.1),),
+                                           led_blackouts=((5.0, 5.4),), dropped_bursts=((10.0, 10.3),),
+                                           exposure_ms=2.0, **SHAKE, **LIT, **wall_image("skimage:brick")), []),
+    "i-aao-stopgo-gravel-40deg-0.6": (dict(tilt_deg=40, profile="stopgo", speed_m_s=0.6, accel_m_s2=0.8,
+                                           stopgo_period_s=4.0, stopgo_dwell_s=0.6, duration_s=16, seed=7017,
+                                           crf=36, wet_patches=((3.0, 3.8),), led_blackouts=((9.2, 9.7),),
+                                           dropped_bursts=((13.0, 13.4),), exposure_ms=2.0, **SHAKE, **LIT,
+                                           **wall_image("skimage:gravel")), []),
+    "i-aao-stopgo-0deg-0.15": (dict(tilt_deg=0, profile="stopgo", speed_m_s=0.15, accel_m_s2=0.4,
+                                    stopgo_period_s=5.0, stopgo_dwell_s=1.5, duration_s=20, seed=7018,
+                                    texture="masonry", crf=38, wet_patches=((0.5, 0.9),),
+                                    led_blackouts=((7.5, 8.3),), dropped_bursts=((16.0, 16.6),),
+                                    exposure_ms=2.0, **SHAKE, **LIT), []),
+    # --- default config, tilt estimated online ---
+    "i-auto-24deg-0.4": (dict(tilt_deg=24, speed_m_s=0.4, duration_s=15, seed=7019, **LIT), AUTO),
+    "i-auto-stopgo-brick-40deg-0.3": (dict(tilt_deg=40, profile="stopgo", speed_m_s=0.3, accel_m_s2=0.5,
+                                           stopgo_period_s=3.0, stopgo_dwell_s=0.8, duration_s=15, seed=7020,
+                                           **SHAKE, **wall_image("skimage:brick")), AUTO),
+}
+
+# controls for the diagnosis of i-aao-stopgo-15deg-0.3 (not part of the table)
+_b = FIRST["i-aao-stopgo-15deg-0.3"][0]
+CONTROLS = {
+    "ctl-aao15-crf18": ({**_b, "crf": 18}, []),                       # the encoder keeps the wet grain
+    "ctl-aao15-noblackout": ({**_b, "led_blackouts": ()}, []),        # no blackout during the stand
+    "ctl-aao15-wet-only": ({**_b, "led_blackouts": (), "dropped_bursts": ()}, []),
+}
+FIRST.update(CONTROLS)
+
+
+BRICK, GRAVEL, GRASS = (wall_image(f"skimage:{w}") for w in ("brick", "gravel", "grass"))
+
+SECOND = {  # session 12, a second reviewer: seeds 8001-8024
+    # --- wet stretches under the LED's highlight, photographed walls ---
+    "s6-wet-lit-brick-0deg-0.2": (dict(
+        tilt_deg=0, speed_m_s=0.2, duration_s=14, seed=8001, wet_patches=((1.0, 1.6),), wet_highlight=1.6,
+        **LIT, **BRICK), []),
+    # stands 2 (t 5-6 s) with the wet stretch's start edge at the image centre, then drives onto it;
+    # stand 3 (t 8-9 s) on the wet stretch
+    "s6-wet-stop-on-edge-grass-20deg-0.25": (dict(
+        tilt_deg=20, profile="stopgo", speed_m_s=0.25, accel_m_s2=0.5, stopgo_period_s=3.0, stopgo_dwell_s=1.0,
+        duration_s=12, seed=8002, wet_patches=((round(stand(0.25, 0.5, 3.0, 1.0, 2)[0] + view(20), 3), 1.40),),
+        wet_highlight=1.5, wet_highlight_at=(480.0, 520.0), **LIT, **GRASS), []),
+    # stand 2 (t 6.2-7.0 s) with the wet stretch's exit edge at the image centre
+    "s6-wet-stop-at-exit-brick-30deg-0.4": (dict(
+        tilt_deg=30, profile="stopgo", speed_m_s=0.4, accel_m_s2=0.6, stopgo_period_s=3.5, stopgo_dwell_s=0.8,
+        duration_s=14, seed=8003, wet_patches=((1.0, round(stand(0.4, 0.6, 3.5, 0.8, 2)[0] + view(30), 3)),),
+        wet_highlight=1.2, wet_highlight_at=(480.0, 480.0), **LIT, **BRICK), []),
+    # stand 2 (t 6.8-8.0 s) with the wet stretch entering the far edge of the image, sets off onto it
+    "s6-wet-stop-before-gravel-40deg-0.15": (dict(
+        tilt_deg=40, profile="stopgo", speed_m_s=0.15, accel_m_s2=0.4, stopgo_period_s=4.0, stopgo_dwell_s=1.2,
+        duration_s=16, seed=8004, wet_patches=((round(stand(0.15, 0.4, 4.0, 1.2, 2)[0] + 0.30, 3), 1.35),),
+        wet_highlight=1.0, wet_highlight_deg=8.0, wet_highlight_at=(480.0, 400.0), **LIT, **GRAVEL), []),
+    # --- LED blackouts ---
+    "s6-blackout-0.2s-x3-grass-10deg-0.6": (dict(
+        tilt_deg=10, speed_m_s=0.6, duration_s=12, seed=8005, exposure_ms=2.0,
+        led_blackouts=((2.0, 2.2), (5.5, 5.7), (9.0, 9.2)), **LIT, **GRASS), []),
+    # 2 s dark from braking (stand 1: 2.5-4.0 s) through the stand into the set-off
+    "s6-blackout-2s-standing-20deg-0.3": (dict(
+        tilt_deg=20, profile="stopgo", speed_m_s=0.3, accel_m_s2=0.5, stopgo_period_s=4.0, stopgo_dwell_s=1.5,
+        duration_s=14, seed=8006, exposure_ms=2.0, led_blackouts=((2.3, 4.3),), texture="masonry", **LIT), []),
+    # 1 s dark from braking into stand 2 (6.0-7.0 s); 0.4 s dark inside stand 3 (9.5-10.5 s)
+    "s6-blackout-brake-and-stand-brick-40deg-0.5": (dict(
+        tilt_deg=40, profile="stopgo", speed_m_s=0.5, accel_m_s2=0.8, stopgo_period_s=3.5, stopgo_dwell_s=1.0,
+        duration_s=14, seed=8007, exposure_ms=2.0, led_blackouts=((5.7, 6.7), (9.6, 10.0)), **LIT, **BRICK), []),
+    # --- dropped-frame bursts ---
+    "s6-drop-3f-x4-30deg-0.7": (dict(
+        tilt_deg=30, speed_m_s=0.7, duration_s=12, seed=8008,
+        dropped_bursts=((2.01, 2.11), (4.51, 4.61), (7.01, 7.11), (9.51, 9.61))), []),
+    "s6-drop-60f-masonry-20deg-0.25": (dict(
+        tilt_deg=20, speed_m_s=0.25, duration_s=14, seed=8009, texture="masonry",
+        dropped_bursts=((6.0, 7.99),)), []),
+    # 25 frames while accelerating (0-3 s), 15 while braking (11-14 s)
+    "s6-drop-25f-accel-brick-0deg-0.6": (dict(
+        tilt_deg=0, profile="accel", speed_m_s=0.6, accel_m_s2=0.2, duration_s=14, seed=8010,
+        dropped_bursts=((1.5, 2.32), (12.0, 12.49)), **BRICK), []),
+    # --- CRF 33-40 with shake ---
+    "s6-crf34-brick-shake-40deg-0.3": (dict(
+        tilt_deg=40, speed_m_s=0.3, duration_s=14, seed=8011, crf=34, **SHAKE, **BRICK), []),
+    "s6-crf39-gravel-shake-10deg-0.5": (dict(
+        tilt_deg=10, speed_m_s=0.5, duration_s=10, seed=8012, crf=39, **SHAKE, **GRAVEL), []),
+    # --- accel / reverse with disturbances ---
+    "s6-accel-wet-blackout-grass-30deg-0.8": (dict(
+        tilt_deg=30, profile="accel", speed_m_s=0.8, accel_m_s2=0.25, duration_s=14, seed=8013, exposure_ms=2.0,
+        wet_patches=((4.0, 5.0),), wet_highlight=1.4, wet_highlight_at=(480.0, 560.0),
+        led_blackouts=((12.0, 12.6),), **LIT, **GRASS), []),
+    # 24 frames lost around the reversal at 6.0 s
+    "s6-reverse-drop-grass-20deg-0.4": (dict(
+        tilt_deg=20, profile="reverse", speed_m_s=0.4, accel_m_s2=0.5, duration_s=15, seed=8014, crf=33,
+        dropped_bursts=((5.7, 6.49),), **GRASS), []),
+    # the wet stretch crossed forward and back (reversal at 6.4 s, 1.18 m)
+    "s6-reverse-wet-crf35-shake-brick-0deg-0.2": (dict(
+        tilt_deg=0, profile="reverse", speed_m_s=0.2, accel_m_s2=0.4, duration_s=16, seed=8015, crf=35,
+        wet_patches=((0.7, 1.0),), wet_highlight=1.8, **SHAKE, **LIT, **BRICK), []),
+    # --- everything at once: wet + blackout + drops + CRF >= 34 + shake ---
+    # stands at 0.6/1.2/1.8/2.4 m (2.5-3.5, 6-7, 9.5-10.5, 13-14 s); stand 2 on the wet stretch's start,
+    # dark through it into the set-off; 12 frames lost at the end of stand 3 into its set-off
+    "s6-aao-stopgo-brick-0deg-0.3": (dict(
+        tilt_deg=0, profile="stopgo", speed_m_s=0.3, accel_m_s2=0.6, stopgo_period_s=3.5, stopgo_dwell_s=1.0,
+        duration_s=16, seed=8016, crf=35, wet_patches=((1.15, 1.55),), wet_highlight=1.6,
+        led_blackouts=((6.3, 7.3),), dropped_bursts=((10.2, 10.59),), exposure_ms=2.0,
+        **SHAKE, **LIT, **BRICK), []),
+    # stand 1 (3.2-4 s) with the wet start edge in view, 15 frames lost on the set-off onto it;
+    # dark from braking into stand 3 (11.2-12 s)
+    "s6-aao-stopgo-gravel-20deg-0.5": (dict(
+        tilt_deg=20, profile="stopgo", speed_m_s=0.5, accel_m_s2=0.8, stopgo_period_s=4.0, stopgo_dwell_s=0.8,
+        duration_s=16, seed=8017, crf=37,
+        wet_patches=((round(stand(0.5, 0.8, 4.0, 0.8, 1)[0] + view(20), 3), 2.2),), wet_highlight=1.3,
+        wet_highlight_at=(480.0, 600.0), led_blackouts=((11.0, 11.8),), dropped_bursts=((4.0, 4.49),),
+        exposure_ms=2.0, **SHAKE, **LIT, **GRAVEL), []),
+    # stands at 0.3/0.6/0.9/1.2 m; stand 2 (5-6 s) with the wet start edge centred, stand 3 (8-9 s) at the
+    # exit edge and dark 0.4 s there; 30 frames lost from the end of stand 4 (11-12 s) into the set-off
+    "s6-aao-stopgo-grass-30deg-0.2": (dict(
+        tilt_deg=30, profile="stopgo", speed_m_s=0.2, accel_m_s2=0.4, stopgo_period_s=3.0, stopgo_dwell_s=1.0,
+        duration_s=15, seed=8018, crf=34,
+        wet_patches=((round(stand(0.2, 0.4, 3.0, 1.0, 2)[0] + view(30), 3),
+                      round(stand(0.2, 0.4, 3.0, 1.0, 3)[0] + view(30) - 0.03, 3)),),
+        wet_highlight=1.3, wet_highlight_at=(480.0, 500.0), led_blackouts=((8.2, 8.6),),
+        dropped_bursts=((11.6, 12.59),), exposure_ms=2.0, **SHAKE, **LIT, **GRASS), []),
+    # forward to 2.85 m (reversal at 5.6 s, dark through it), back to -1.68 m: the wet stretch both ways
+    "s6-aao-reverse-brick-40deg-0.6": (dict(
+        tilt_deg=40, profile="reverse", speed_m_s=0.6, accel_m_s2=0.7, duration_s=14, seed=8019, crf=36,
+        wet_patches=((1.2, 1.8),), wet_highlight=1.5, wet_highlight_at=(480.0, 560.0),
+        led_blackouts=((5.3, 6.0),), dropped_bursts=((9.0, 9.49),), exposure_ms=2.0,
+        **SHAKE, **LIT, **BRICK), []),
+    # a crawl: forward to 0.35 m, reversal at 7.2 s inside 1.2 s dark, 60 frames lost backing up
+    "s6-aao-reverse-gravel-10deg-0.05": (dict(
+        tilt_deg=10, profile="reverse", speed_m_s=0.05, accel_m_s2=0.2, duration_s=18, seed=8020, crf=38,
+        wet_patches=((0.12, 0.30),), wet_highlight=1.8, led_blackouts=((6.8, 8.0),),
+        dropped_bursts=((12.0, 13.99),), exposure_ms=2.0, **SHAKE, **LIT, **GRAVEL), []),
+    # fast: stands at 1.28/2.56/3.84 m (2.4-3, 5.4-6, 8.4-9 s); stand 2 on the wet stretch, dark there;
+    # 12 frames lost at the end of stand 3 into its set-off
+    "s6-aao-stopgo-masonry-40deg-0.8": (dict(
+        tilt_deg=40, profile="stopgo", speed_m_s=0.8, accel_m_s2=1.0, stopgo_period_s=3.0, stopgo_dwell_s=0.6,
+        duration_s=12, seed=8021, crf=38, texture="masonry", wet_patches=((2.6, 3.2),), wet_highlight=1.5,
+        wet_highlight_at=(480.0, 420.0), led_blackouts=((5.5, 5.9),), dropped_bursts=((8.9, 9.29),),
+        exposure_ms=2.0, **SHAKE, **LIT), []),
+    # --- tilt estimated online (mount.tilt_deg=auto) ---
+    "s6-auto-gravel-10deg-0.3": (dict(
+        tilt_deg=10, speed_m_s=0.3, duration_s=12, seed=8022, crf=28, **LIT, **GRAVEL), AUTO),
+    # everything at once as well: stand 2 (6-7 s) with the wet start edge centred, dark in stand 3
+    "s6-auto-aao-stopgo-grass-30deg-0.35": (dict(
+        tilt_deg=30, profile="stopgo", speed_m_s=0.35, accel_m_s2=0.6, stopgo_period_s=3.5, stopgo_dwell_s=1.0,
+        duration_s=15, seed=8023, crf=34,
+        wet_patches=((round(stand(0.35, 0.6, 3.5, 1.0, 2)[0] + view(30), 3), 1.9),), wet_highlight=1.3,
+        wet_highlight_at=(480.0, 540.0), led_blackouts=((9.6, 10.2),), dropped_bursts=((3.4, 3.79),),
+        exposure_ms=2.0, **SHAKE, **LIT, **GRASS), AUTO),
+    "s6-auto-reverse-masonry-0deg-0.5": (dict(
+        tilt_deg=0, profile="reverse", speed_m_s=0.5, accel_m_s2=0.8, duration_s=12, seed=8024, crf=34,
+        texture="masonry", dropped_bursts=((7.0, 7.29),), **SHAKE), AUTO),
+}
+
+INDEPENDENT = {**FIRST, **SECOND}
