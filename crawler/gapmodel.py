@@ -59,6 +59,8 @@ class Gap:
     open_at_close: bool = False       # a stand was still shown when the wall was measured again
     before_reset_m: float = 0.0       # the model's travel up to an operator's reset inside it
     either_way: bool = False          # it set off as it opened, which way not seen (gaps.py _setting_off)
+    set_off_var: float | None = None  # ...a set-off taken as it opened: the variance that added (a stand
+                                      # shown from before it takes it back)
     rejoin: float | None = None       # a frame measured inside a stand shown, and lost again: when
     alias: tuple | None = None        # ...and the stand shown again after it: (its since, the kept since)
 
@@ -139,6 +141,9 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None, t_s: float | None = 
         g.stand = stand
         if not g.confirmed and stand[1] - max(stand[0], g.t0) >= p.min_stand_s:
             g.confirmed = True                         # the brake into it
+            if g.set_off_var is not None and stand[0] - g.t0 <= g.resumed[0]:   # the set-off taken as the
+                g.edges_var = max(0.0, g.edges_var - g.set_off_var)   # gap opened is not: it stood on (a start after
+                g.resumed, g.either_way, g.set_off_var = None, False, None     # the stand is its own)
             _edge(p, g, 1.0)
             if braking(g) and g.resumed is not None and g.resumed[2] == math.inf:   # it stood again:
                 T0, v, _ = g.resumed                   # the carry ends, its brake taken off

@@ -85,12 +85,17 @@ class GapBridge:
 
     def reset(self, distance_m: float = 0.0, vision_m: float | None = None):
         """The operator's reset: count from distance_m (the odometer from vision_m), no uncertainty
-        carried over. A gap open now is bridged on from the new count; where it is measured across,
-        the model's travel since the odometer's last start (the gap's, or one inside it) comes off."""
+        carried over but a gap's open now: it is bridged on from the new count, and where the crawler
+        was at the reset is its model's guess; where it is measured across, the model's travel since
+        the odometer's last start (the gap's, or one inside it) comes off."""
         g, at, restart = (self._gap, self._blind_at, self._restarted) if self._settling is None else (None,) * 3
+        if g is not None and at is not None:      # where the crawler was at the reset is the model's guess
+            T, stands_var = model_time(g, at[0])
+            guess_var = model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var + self._either_var(g, T)
         self.__init__(self.p, distance_m)
         self.offset_m = 0.0 if vision_m is None else distance_m - vision_m
         if g is not None and at is not None:
+            self.var_gaps = guess_var             # (a phantom set-off before it: -437 mm at 1.3 sigma, not 3.5)
             pre = at[1] - g.d0
             g.before_reset_m = pre - (travel_to(self.p, g, restart[0]) if restart else 0.0)
             g.d0, g.vis0, self._gap, self._blind_at = (distance_m - pre, g.vis0 if vision_m is None else vision_m,
@@ -134,7 +139,12 @@ class GapBridge:
         seen = p.min_drive_accel_m_s2 <= g.up <= p.max_accel_m_s2     # a start's rate the frames showed
         g.resumed = (late + abs(c - v) / (2 * (g.up if seen else drive_rate(p))), c, math.inf)
         quick, gentle = (abs(c - v) / (2 * rate) for rate in (p.max_accel_m_s2, p.min_drive_accel_m_s2))
-        g.edges_var += (c * (gentle - quick)) ** 2 / 12.0 + (c * late) ** 2 / 3.0   # its rate, and when
+        g.set_off_var = (c * (gentle - quick)) ** 2 / 12.0 + (c * late) ** 2 / 3.0   # its rate, and when
+        g.edges_var += g.set_off_var
+
+    def _either_var(self, g: Gap, T: float) -> float:
+        """A set-off whose way is not seen (`either_way`), carried for T: the other way is twice as far."""
+        return (travel(self.p, g, T) - g.v0 * T) ** 2 if g.either_way else 0.0
 
     def _watch_still(self, t: float, out: float):
         """The published distance standing (within what a standing speed moves in min_stand_s): the
@@ -193,9 +203,7 @@ class GapBridge:
         g = self._gap
         see_stand(self.p, g, getattr(est, "stand", None), est.t_s)     # (a plain estimate shows none)
         T, stands_var = model_time(g, est.t_s)
-        var = model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var
-        if g.either_way:              # a set-off whose way is not seen: the other way is twice as far
-            var += (travel(self.p, g, T) - g.v0 * T) ** 2
+        var = model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var + self._either_var(g, T)
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
         out = g.d0 + travel(self.p, g, T)
@@ -248,7 +256,7 @@ class GapBridge:
         if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
             g = self._gap
             T, stands_var = model_time(g, self._settling[0])
-            total += model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var
+            total += model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var + self._either_var(g, T)
         self._watch_still(est.t_s, self._out_m)
         return Bridged(self._out_m, math.sqrt(total), False, self.noise.white(est), gap_T)
 
@@ -283,7 +291,8 @@ class GapBridge:
             # start the gap is the model's, at the speed before it, and so is its uncertainty
             self._gap = None
             T_model, stands_var = model_time(g, restarted[0])
-            self.var_gaps += model_var(self.p, T_model, moving_speed(g), sa=g.sa) + stands_var
+            self.var_gaps += (model_var(self.p, T_model, moving_speed(g), sa=g.sa) + stands_var
+                              + self._either_var(g, T_model))
             self._carry(g.t0, restarted[0], travel(self.p, g, T_model))
             self._hist.append((restarted[0], restarted[1] + self.offset_m))   # measured again: a speed
         else:                         # a fresh start: provisionally the model's, settled later

@@ -38,6 +38,7 @@ from .flow import encoder_copy
 
 SPEED_NOISE_RATE = 0.05   # the speed's jitter is remembered over ~20 believed frames...
 SPEED_NOISE_MIN = 10      # ...and counts once 10 have shown it
+LIGHT_STEP = 0.1          # a blind frame this much brighter or darker than the last measured: the light changed
 DRIVE_MEMORY_S = 5.0      # the fastest believed speed is the drive's for this long
 REMATCH_NCC = 0.3         # a match across a gap whose patches' fine texture correlates less is not the wall's...
 REMATCH_AFTER_S = 0.2     # ...once this long blind: over a few frames the guess stays on the wall, and at CRF 40
@@ -61,6 +62,7 @@ class FrameGates:
         self._refused_since = None    # the first of a run of refused measurements...
         self._refused_pulled = False  # ...and whether under shading that stays put (plausible)
         self._seen = 0
+        self._grey_seen = None        # the last measured frame's mean grey
         self._rows = None             # every 8th row of the last frame, kept only inside a gap
         self._still = None            # (distance, picture where a stand began, its last frame's): _picture
         self._dv_var = FadingMean(SPEED_NOISE_RATE)   # the variance of a believed speed's change from the last one's
@@ -148,13 +150,20 @@ class FrameGates:
 
     def remember(self, roi, energy: float):
         """A measured frame: what the lit, textured wall looks like lately (the light, which
-        changes slowly, from every 4th)."""
+        changes slowly, from every 4th), and how bright this one is (lit_as_before)."""
         a, tex, light = self.p.texture_memory, self.texture_ref, self.light_ref
         self.texture_ref = energy if tex is None else tex + a * (energy - tex)
         self._seen += 1
+        self._grey_seen = grey = _grey(roi)
         if light is None or self._seen % 4 == 0:
-            grey = _grey(roi)
             self.light_ref = grey if light is None else light + 4 * a * (grey - light)
+
+    def lit_as_before(self, roi) -> bool:
+        """Is a blind frame lit as the last measured one was (within LIGHT_STEP)? A picture that
+        changed with the light (an LED going off or coming back: a blackout's first frame, half
+        exposed, read 0.78 of the last) says nothing of the wall moving under the camera."""
+        g = self._grey_seen
+        return g is None or abs(_grey(roi) - g) <= LIGHT_STEP * g
 
     def measured(self, v: float, t_s: float):
         """The speed of a frame that was believed, and how it jitters: a car that pitches and bounces

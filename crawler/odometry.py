@@ -280,7 +280,7 @@ class Odometer:
     def _measure(self, img, t_s, rescue: bool = True) -> Estimate:
         (idx, pts1, n_visible), p, kf = self._track_guessed(img, t_s), self.params, self._kf
         c = self._consensus(idx, pts1, t_s) if len(idx) >= p.min_tracks else None
-        changed = c is None                   # the tracks are gone: the picture changed, unless refused below
+        changed = c is None and self._gates.lit_as_before(img)   # the tracks gone: the picture changed
         clear = c is not None and (not self._resumed or reacquired(c, n_visible, p, self.m_per_px))
         morphed = c is not None and self._gates.morphed(kf, img, kf.distance + c.step, p.still_px * self.m_per_px)
         mute = self._copy or (c is not None and self._gates.tracks_say_nothing(
@@ -348,7 +348,7 @@ class Odometer:
         found = self._dense.shift(roi, t_s)
         dt = t_s - self._prev_t if self._prev_t is not None else 0.0
         if found is None or dt <= 0:
-            return self._blind(t_s, changed=True)     # lit, but the texture faded
+            return self._blind(t_s, changed=self._gates.lit_as_before(roi))   # lit, the texture faded
         (du, dv), response, since_s = found
         jyv, jyu, jsv, jsu = self._dense_jac
         step, lat = jyv * dv + jyu * du, jsv * dv + jsu * du
