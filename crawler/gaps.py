@@ -95,7 +95,7 @@ class GapBridge:
         self.__init__(self.p, distance_m)
         self.offset_m = 0.0 if vision_m is None else distance_m - vision_m
         if g is not None and at is not None:
-            self.var_gaps = guess_var             # (a phantom set-off before it: -437 mm at 1.3 sigma, not 3.5)
+            self.var_gaps = guess_var             # (a phantom set-off before it: -437 mm at 0.8 sigma, not 3.5)
             pre = at[1] - g.d0
             g.before_reset_m = pre - (travel_to(self.p, g, restart[0]) if restart else 0.0)
             g.d0, g.vis0, self._gap, self._blind_at = (distance_m - pre, g.vis0 if vision_m is None else vision_m,
