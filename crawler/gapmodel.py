@@ -316,7 +316,8 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     ramped = abs(dv) >= p.ramp_dv_m_s
     # a stand the frames showed, or a set-off as the gap opened (gaps.py) that the speed after bears out
     seen = p.min_drive_accel_m_s2 <= g.up <= p.max_accel_m_s2     # (a start's rate seen: read at it below)
-    off = g.resumed is not None and not seen and v1 * g.resumed[1] > 0 and abs(v1) - abs(g.v0) >= p.ramp_dv_m_s
+    off = (g.resumed is not None and not seen and v1 * g.resumed[1] > 0 and abs(v1) - abs(g.v0) >= p.ramp_dv_m_s
+           and not a1 * v1 > 0)       # a crawler seen still speeding up after it: its ramp times the start
     shown = (g.stood_s > 0 or g.stand is not None or off) and not braking(g)
     dv_run = v1 - moving_speed(g)
     if shown and g.open_at_close and standing(p, v1):
