@@ -31,6 +31,11 @@ def stand(v, a, period, dwell, k):
     return k * a * ramp * (go - ramp), k * period - dwell, k * period
 
 
+def sg(v, a, P, D):
+    """A stopgo profile's fields."""
+    return dict(profile="stopgo", speed_m_s=v, accel_m_s2=a, stopgo_period_s=P, stopgo_dwell_s=D)
+
+
 FIRST = {  # session 12, a first reviewer: seeds 7001-7020
     # --- one disturbance each ---
     "i-wet-lit-15deg-0.25": (dict(tilt_deg=15, speed_m_s=0.25, duration_s=14, seed=7001,
@@ -220,4 +225,60 @@ SECOND = {  # session 12, a second reviewer: seeds 8001-8024
         texture="masonry", dropped_bursts=((7.0, 7.29),), **SHAKE), AUTO),
 }
 
-INDEPENDENT = {**FIRST, **SECOND}
+THIRD = {  # session 12, a third reviewer: seeds 9001-9012, set-offs into a blind stretch
+    # stand 2 (5-6 s) with the wet start edge 2 cm past the image centre; sets off onto it under the highlight
+    "r8-wet-edge-setoff-brick-10deg-0.3": (dict(
+        tilt_deg=10, **sg(0.3, 0.6, 3.0, 1.0), duration_s=12, seed=9001,
+        wet_patches=((round(stand(0.3, 0.6, 3.0, 1.0, 2)[0] + view(10) + 0.02, 3), 1.6),), wet_highlight=1.6,
+        wet_highlight_at=(480.0, 450.0), **LIT, **BRICK), []),
+    # dark from 0.4 s before the end of stand 2 (5.8-7 s) to 0.6 s into its set-off
+    "r8-blackout-setoff-grass-30deg-0.2": (dict(
+        tilt_deg=30, **sg(0.2, 0.4, 3.5, 1.2), duration_s=14, seed=9002, exposure_ms=2.0,
+        led_blackouts=((6.6, 7.6),), **LIT, **GRASS), []),
+    # 12 frames lost across the set-off of stand 1 (2.2-3 s) and 18 across stand 3's (8.2-9 s); CRF 34, shake
+    "r8-drop-setoff-gravel-40deg-0.4": (dict(
+        tilt_deg=40, **sg(0.4, 0.8, 3.0, 0.8), duration_s=12, seed=9003, crf=34,
+        dropped_bursts=((2.8, 3.2), (8.9, 9.5)), **SHAKE, **GRAVEL), []),
+    # stand 1 (3.2-4 s) with the wet start edge centred; dark 0.3 s before the end of stand 2 (7.2-8 s) into
+    # its set-off; 15 frames lost at stand 3's set-off (12 s); CRF 36, shake
+    "r8-aao-stopgo-brick-20deg-0.5": (dict(
+        tilt_deg=20, **sg(0.5, 0.8, 4.0, 0.8), duration_s=14, seed=9004, crf=36,
+        wet_patches=((round(stand(0.5, 0.8, 4.0, 0.8, 1)[0] + view(20), 3), 2.9),), wet_highlight=1.4,
+        led_blackouts=((7.7, 8.5),), dropped_bursts=((11.9, 12.4),), exposure_ms=2.0, **SHAKE, **LIT, **BRICK), []),
+    # reversal at 5.6 s, dark 5.2-6.3 s through it; CRF 33, shake
+    "r8-reverse-blackout-turn-gravel-0deg-0.3": (dict(
+        tilt_deg=0, profile="reverse", speed_m_s=0.3, accel_m_s2=0.5, duration_s=14, seed=9005, crf=33,
+        exposure_ms=2.0, led_blackouts=((5.2, 6.3),), **SHAKE, **LIT, **GRAVEL), []),
+    # reversal at 4.8 s; wet stretch crossed both ways; 20 frames lost right as it sets off backwards
+    "r8-reverse-wet-drop-grass-35deg-0.6": (dict(
+        tilt_deg=35, profile="reverse", speed_m_s=0.6, accel_m_s2=0.8, duration_s=12, seed=9006,
+        wet_patches=((1.3, 1.9),), wet_highlight=1.5, dropped_bursts=((4.75, 5.42),), **LIT, **GRASS), []),
+    # stand 2 (6.8-8 s) with the wet exit edge at the image centre, sets off off it; masonry, CRF 38, shake
+    "r8-wet-exit-setoff-masonry-25deg-0.15": (dict(
+        tilt_deg=25, **sg(0.15, 0.4, 4.0, 1.2), duration_s=16, seed=9007, crf=38, texture="masonry",
+        wet_patches=((0.3, round(stand(0.15, 0.4, 4.0, 1.2, 2)[0] + view(25), 3)),), wet_highlight=1.5,
+        **SHAKE, **LIT), []),
+    # dark from the middle of stand 2 (5.4-6.5 s) to 0.8 s into its set-off
+    "r8-blackout-midstand-setoff-brick-0deg-0.35": (dict(
+        tilt_deg=0, **sg(0.35, 0.7, 3.25, 1.1), duration_s=13, seed=9008, exposure_ms=2.0,
+        led_blackouts=((5.9, 7.3),), **LIT, **BRICK), []),
+    # a crawl: 1.2 s of frames lost from the end of stand 2 (8-10 s) into its set-off, wet stretch ahead
+    "r8-drop-long-setoff-grass-15deg-0.1": (dict(
+        tilt_deg=15, **sg(0.1, 0.3, 5.0, 2.0), duration_s=16, seed=9009,
+        wet_patches=((round(stand(0.1, 0.3, 5.0, 2.0, 2)[0] + view(15) + 0.05, 3), 0.9),),
+        dropped_bursts=((9.6, 10.8),), **LIT, **GRASS), []),
+    # reverse, crawl; wet stretch both ways, dark through the reversal (6 s), 15 frames lost backing up; CRF 37
+    "r8-aao-reverse-brick-40deg-0.2": (dict(
+        tilt_deg=40, profile="reverse", speed_m_s=0.2, accel_m_s2=0.4, duration_s=15, seed=9010, crf=37,
+        wet_patches=((0.45, 0.7),), wet_highlight=1.6, led_blackouts=((5.6, 6.5),), dropped_bursts=((8.0, 8.5),),
+        exposure_ms=2.0, **SHAKE, **LIT, **BRICK), []),
+    # --- controls: dark strictly inside a stand, light back 0.3 s before the set-off ---
+    "ctl8-stand-blackout-gravel-20deg-0.3": (dict(
+        tilt_deg=20, **sg(0.3, 0.6, 3.5, 1.5), duration_s=12, seed=9011, exposure_ms=2.0,
+        led_blackouts=((5.7, 6.7),), **LIT, **GRAVEL), []),
+    "ctl8-stand-blackout-brick-35deg-0.5": (dict(
+        tilt_deg=35, **sg(0.5, 0.8, 4.0, 1.6), duration_s=14, seed=9012, crf=35, exposure_ms=2.0,
+        led_blackouts=((2.6, 3.6), (10.6, 11.6)), **SHAKE, **LIT, **BRICK), []),
+}
+
+INDEPENDENT = {**FIRST, **SECOND, **THIRD}
