@@ -206,11 +206,22 @@ def _edge(p: BridgeParams, g: Gap, share: float):
     sets off alike, so a stand's two are one error twice: the start adds three times the brake's
     variance, making the stand's (2 x)^2."""
     v = abs(moving_speed(g) or 0.0)
-    quick, gentle = v / (2 * p.max_accel_m_s2), v / (2 * p.min_drive_accel_m_s2)
     g.stood_s += edge_time(p, v)
     after = g.resumed[1] if g.resumed is not None else speed_after_stand(p, g)
     g.edge_s = edge_time(p, after or 0.0)                 # the start out of it: the clock waits for it
-    g.edges_var += share * (v * (gentle - quick)) ** 2 / 12.0
+    g.edges_var += share * rate_range_var(p, v, v)
+
+
+def rate_range_var(p: BridgeParams, dv: float, v: float) -> float:
+    """The variance of a change of speed by dv, at a rate anywhere from min_drive_accel_m_s2 to
+    max_accel_m_s2, in metres at v: the time it takes, uniform over that range's."""
+    quick, gentle = dv / (2 * p.max_accel_m_s2), dv / (2 * p.min_drive_accel_m_s2)
+    return (v * (gentle - quick)) ** 2 / 12.0
+
+
+def start_rate_seen(p: BridgeParams, g: Gap) -> bool:
+    """Did the frames before the gap show a start at a rate a drive can have (`up`)?"""
+    return p.min_drive_accel_m_s2 <= g.up <= p.max_accel_m_s2
 
 
 def model_time(g: Gap, t: float) -> tuple[float, float]:
@@ -315,8 +326,8 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0
     ramped = abs(dv) >= p.ramp_dv_m_s
     # a stand the frames showed, or a set-off as the gap opened (gaps.py) that the speed after bears out
-    seen = p.min_drive_accel_m_s2 <= g.up <= p.max_accel_m_s2     # (a start's rate seen: read at it below)
-    off = (g.resumed is not None and not seen and v1 * g.resumed[1] > 0 and abs(v1) - abs(g.v0) >= p.ramp_dv_m_s
+    off = (g.resumed is not None and not start_rate_seen(p, g)      # (a start's rate seen: read at it below)
+           and v1 * g.resumed[1] > 0 and abs(v1) - abs(g.v0) >= p.ramp_dv_m_s
            and not a1 * v1 > 0)       # a crawler seen still speeding up after it: its ramp times the start
     shown = (g.stood_s > 0 or g.stand is not None or off) and not braking(g)
     dv_run = v1 - moving_speed(g)

@@ -31,8 +31,9 @@ from collections import deque
 from dataclasses import dataclass
 
 from .framenoise import FrameNoise
-from .gapmodel import (BridgeParams, Gap, drive_rate, model_time, model_var, moving_speed, rejoin, see_stand,
-                       set_off, settled_travel, stand_state, standing, stops, travel, travel_to)
+from .gapmodel import (BridgeParams, Gap, drive_rate, model_time, model_var, moving_speed, rate_range_var, rejoin,
+                       see_stand, set_off, settled_travel, stand_state, standing, start_rate_seen, stops, travel,
+                       travel_to)
 from .motionfit import TIME_EPS, motion_before, ramp_rate
 from .motionfit import is_rescale as _is_rescale, ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured
 from .motionfit import slope as _slope
@@ -90,8 +91,7 @@ class GapBridge:
         the odometer's last start (the gap's, or one inside it) comes off."""
         g, at, restart = (self._gap, self._blind_at, self._restarted) if self._settling is None else (None,) * 3
         if g is not None and at is not None:      # where the crawler was at the reset is the model's guess
-            T, stands_var = model_time(g, at[0])
-            guess_var = model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var + self._either_var(g, T)
+            guess_var = self._model_var(g, at[0])[1]
         self.__init__(self.p, distance_m)
         self.offset_m = 0.0 if vision_m is None else distance_m - vision_m
         if g is not None and at is not None:
@@ -114,37 +114,41 @@ class GapBridge:
         cruise = self._cruise[1]           # (t, speed): one older than the model's horizon is no guide
         g.vis0 = self._out_m - self.offset_m
         g.cruise = cruise[1] if cruise is not None and cruise[0] >= t0 - self.p.max_bridge_s else None
-        self._setting_off(g, t0, est if getattr(est, "changed", False) else None)
+        self._setting_off(g, t0, est.t_s if getattr(est, "changed", False) else None)
         return g
 
-    def _setting_off(self, g: Gap, t0: float, est):
+    def _setting_off(self, g: Gap, t0: float, changed_at: float | None):
         """A gap that opens as the crawler sets off out of a stand (it stood for min_stand_s up to
         SET_OFF_S before, and moves now, slower than its cruise the same way): it drives on to its
         cruise at the drive's rate, as after a stand the frames showed (gapmodel.speed_after_stand).
         Carried at the speed of its first frames, an independent stress run's set-off onto a wet
         wall was bridged at 0.008 m/s for 2 s where it drove at 0.3. One that opens on a stand, as
-        the lit picture changed (`est.changed`: a standing crawler's does not), set off between the
-        last still frame and that one (frames dropped between them: any time in the drop, so its
+        the lit picture changed (at `changed_at`, Estimate.changed: a standing crawler's does not), set
+        off between the last still frame and that one (frames dropped between them: any time in the drop, so its
         middle), the way it is not seen: its cruise's, either way in its sigma (`either_way`)."""
         p, stood, c, v = self.p, self._stood, g.cruise, g.v0
         if stood is None or c is None or v is None or t0 - stood[1] > SET_OFF_S or standing(p, c):
             return
         late = 0.0                    # when it set off, after t0
         if standing(p, v):
-            if est is None or not est.changed or t0 - stood[1] > TIME_EPS:
+            if changed_at is None or t0 - stood[1] > TIME_EPS:
                 return
-            g.either_way, late = True, (est.t_s - t0) / 2
+            g.either_way, late = True, (changed_at - t0) / 2
         elif g.a0 * v < 0 or v * c <= 0 or abs(v) >= 0.5 * abs(c):
             return
-        seen = p.min_drive_accel_m_s2 <= g.up <= p.max_accel_m_s2     # a start's rate the frames showed
-        g.resumed = (late + abs(c - v) / (2 * (g.up if seen else drive_rate(p))), c, math.inf)
-        quick, gentle = (abs(c - v) / (2 * rate) for rate in (p.max_accel_m_s2, p.min_drive_accel_m_s2))
-        g.set_off_var = (c * (gentle - quick)) ** 2 / 12.0 + (c * late) ** 2 / 3.0   # its rate, and when
+        rate = g.up if start_rate_seen(p, g) else drive_rate(p)       # a start's rate the frames showed
+        g.resumed = (late + abs(c - v) / (2 * rate), c, math.inf)
+        g.set_off_var = rate_range_var(p, abs(c - v), c) + (c * late) ** 2 / 3.0   # its rate, and when
         g.edges_var += g.set_off_var
 
     def _either_var(self, g: Gap, T: float) -> float:
         """A set-off whose way is not seen (`either_way`), carried for T: the other way is twice as far."""
         return (travel(self.p, g, T) - g.v0 * T) ** 2 if g.either_way else 0.0
+
+    def _model_var(self, g: Gap, t: float) -> tuple[float, float]:
+        """The model's time from the gap's start to t, and the variance of what it carried by then."""
+        T, stands_var = model_time(g, t)
+        return T, model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var + self._either_var(g, T)
 
     def _watch_still(self, t: float, out: float):
         """The published distance standing (within what a standing speed moves in min_stand_s): the
@@ -202,8 +206,7 @@ class GapBridge:
             self._gap_prev_var = 0.0
         g = self._gap
         see_stand(self.p, g, getattr(est, "stand", None), est.t_s)     # (a plain estimate shows none)
-        T, stands_var = model_time(g, est.t_s)
-        var = model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var + self._either_var(g, T)
+        T, var = self._model_var(g, est.t_s)
         step = math.sqrt(max(var - self._gap_prev_var, 0.0))
         self._gap_prev_var = var
         out = g.d0 + travel(self.p, g, T)
@@ -254,9 +257,7 @@ class GapBridge:
             self._hist.popleft()
         total = self.var_meas + self.var_gaps + (0.0 if est.keyframe else step_var) + self.noise.pose_var
         if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
-            g = self._gap
-            T, stands_var = model_time(g, self._settling[0])
-            total += model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var + self._either_var(g, T)
+            total += self._model_var(self._gap, self._settling[0])[1]
         self._watch_still(est.t_s, self._out_m)
         return Bridged(self._out_m, math.sqrt(total), False, self.noise.white(est), gap_T)
 
@@ -290,9 +291,8 @@ class GapBridge:
             # measured since a fresh start inside the gap (the offset was set then): up to that
             # start the gap is the model's, at the speed before it, and so is its uncertainty
             self._gap = None
-            T_model, stands_var = model_time(g, restarted[0])
-            self.var_gaps += (model_var(self.p, T_model, moving_speed(g), sa=g.sa) + stands_var
-                              + self._either_var(g, T_model))
+            T_model, var = self._model_var(g, restarted[0])
+            self.var_gaps += var
             self._carry(g.t0, restarted[0], travel(self.p, g, T_model))
             self._hist.append((restarted[0], restarted[1] + self.offset_m))   # measured again: a speed
         else:                         # a fresh start: provisionally the model's, settled later
