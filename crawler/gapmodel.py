@@ -25,6 +25,9 @@ class BridgeParams:
     min_accel_m_s2: float = 0.15      # a fitted acceleration below this is noise: constant speed
     ramp_dv_m_s: float = 0.05         # a speed change across a gap below this is the fits' error, not a ramp
     settle_s: float = 0.25            # after a fresh start, measure the speed this long before settling
+    across_s: float = 0.15            # a step measured across more unseen time is checked against the speeds
+    across_accel_m_s2: float = 1.5    # ...at its ends, at the rates a drive has (the odometer's gates' bound)
+    across_speed_m_s: float = 0.05    # ...each known within this
     max_bridge_s: float = 30.0        # beyond this the model is a guess: the speed fades to 0 over it
     pose_sigma_m: float = 0.0         # the camera's pitching on the car, as wall metres (measurement.py)
     jitter_memory: float = 0.05       # weight of each frame in the running jitter estimate (~1 s at 30 fps)
@@ -61,6 +64,7 @@ class Gap:
     either_way: bool = False          # it set off as it opened, which way not seen (gaps.py _setting_off)
     set_off_var: float | None = None  # ...a set-off taken as it opened: the variance that added (a stand
                                       # shown from before it takes it back)
+    across: bool = False              # the odometer measured across it: its step, checked by the speed after
     rejoin: float | None = None       # a frame measured inside a stand shown, and lost again: when
     alias: tuple | None = None        # ...and the stand shown again after it: (its since, the kept since)
 

@@ -34,7 +34,7 @@ from .framenoise import FrameNoise
 from .gapmodel import (BridgeParams, Gap, drive_rate, model_time, model_var, moving_speed, rate_range_var, rejoin,
                        see_stand, set_off, settled_travel, stand_state, standing, start_rate_seen, stops, travel,
                        travel_to)
-from .motionfit import TIME_EPS, motion_before, ramp_rate
+from .motionfit import TIME_EPS, motion_before, ramp_rate, reach
 from .motionfit import is_rescale as _is_rescale, ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured
 from .motionfit import slope as _slope
 
@@ -224,8 +224,9 @@ class GapBridge:
             # another fresh start while the last one settles: what was measured since that one
             # settles the gap (or, too short, reopens it); this frame's motion is unknown again
             self._settle_or_reopen()
-        if self._gap is None and not est.continuous and self._hist:
-            self._gap = self._open_gap()      # a fresh start right after a measured frame: a gap of one
+        if self._gap is None and self._hist and (not est.continuous or est.t_s - self._hist[-1][0] > self.p.across_s):
+            self._gap = self._open_gap()      # a fresh start right after a measured frame: a gap of one;
+                                              # or frames dropped, measured across: checked as a gap's
         # before the gap closes: its model is in the old metres. The samples after a gap inside the
         # epoch scale with it, as a plain scale even when it is a remount's (spread over their own
         # span, a 3 % remount read as a ramp: 0.54 m/s after a gap for 0.3)
@@ -283,7 +284,10 @@ class GapBridge:
         see_stand(self.p, g, None)    # measured again: a stand still shown ends (one too short is none)
         T = est.t_s - g.t0
         restarted, self._restarted = self._restarted, None
-        if est.continuous and restarted is None:   # measured across the gap: the odometer's distance
+        if est.continuous and restarted is None and T > self.p.across_s and g.v0 is not None and not g.before_reset_m:
+            g.across = True           # measured across: the step stands unless the speed after says no
+            self._settling = (est.t_s, [(est.t_s, est.distance_m)])
+        elif est.continuous and restarted is None:   # measured across the gap: the odometer's distance
             self._gap = None          # has it all, the offset stays (less what came before a reset in it)
             self.var_meas, self.offset_m = self.var_meas + self.p.step_floor_m ** 2, self.offset_m - g.before_reset_m
             self._carry(g.t0, g.t0, -g.before_reset_m)     # (in the epoch's metres: it scales with them)
@@ -334,6 +338,9 @@ class GapBridge:
                 v_end, a1 = v, drive
             if stopped and v_end * v1 <= 0:       # a speed at t1 against the motion after: it stood then
                 v_end, a1 = 0.0, 0.0
+        if v1 is None and g.across:   # measured across, and lost again too soon to check: it stands
+            self._keep_across(g)
+            return
         if v1 is None:                # reopen: drop what the short measurement added to the history
             while self._hist and self._hist[-1][0] >= t1:
                 self._hist.pop()
@@ -342,6 +349,9 @@ class GapBridge:
                 rejoin(g, self._held, t1)
             return
         self._settled_v = (samples[-1][0], v1)
+        if g.across and self._reachable(g, T, samples[0][1], v_end):
+            self._keep_across(g, (samples[-1][0], v1))
+            return
         after = set_off(self.p, g, t1, v_end, a1)          # (a stand shown, a start seen after it)
         corrected, unseen_var = (after, 0.0) if after is not None else settled_travel(self.p, g, T, v_end, a1)
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
@@ -357,6 +367,21 @@ class GapBridge:
         both = g.v0 is not None and not stopped
         self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var + stands_var
         self._gap = None
+
+    def _reachable(self, g: Gap, T: float, d1: float, v1: float) -> bool:
+        """Could a crawler have gone the odometer's step across the gap, from the speed before it to
+        the one after? Not on a periodic wall's alias: a reversal inside 0.7 s of dropped frames
+        read 0.20 m (two 102 mm periods) forward of the truth; the motion model carries it then."""
+        p = self.p
+        span = reach(g.v0, v1, T, p.across_accel_m_s2)
+        slack = p.across_speed_m_s * T
+        return span is None or span[0] - slack <= d1 + self.offset_m - g.d0 <= span[1] + slack
+
+    def _keep_across(self, g: Gap, settled_v=None):
+        """The step measured across the gap stands (as measured, no model's uncertainty)."""
+        self._gap, self._settled_v = None, settled_v or self._settled_v
+        self.var_meas += self.p.step_floor_m ** 2
+        self._carry(g.t0, g.t0, 0.0)
 
     def _carry(self, t0: float, t1: float, metres: float):
         self._carried.append([t0, t1, metres])

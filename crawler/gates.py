@@ -165,11 +165,18 @@ class FrameGates:
         g = self._grey_seen
         return g is None or abs(_grey(roi) - g) <= LIGHT_STEP * g
 
-    def measured(self, v: float, t_s: float):
+    def measured(self, v: float, t_s: float, over_s: float = 0.0):
         """The speed of a frame that was believed, and how it jitters: a car that pitches and bounces
         moves the image by a few pixels a frame whatever it drives, which the tracks' raw step reads
         as speed (at 40 deg with 0.5 deg of pitch, ~0.1 m/s from one frame to the next). The change
-        of the change drops a steady acceleration; clipped, one real stop does not widen the gate."""
+        of the change drops a steady acceleration; clipped, one real stop does not widen the gate.
+        A step over_s long, across frames lost or dropped (over across_s), is the mean speed over
+        them, not the speed now: the reference stays the one before, its band grown since. (A
+        periodic wall's alias across a reversal in a drop read the mean +0.05 m/s; held as the
+        speed now, it refused the true -0.52 m/s after, and the tracks followed the alias: +17 %.)"""
+        self._refused_since = None    # a believed frame ends any refusal
+        if over_s > self.p.across_s:
+            return
         if self.v_ref is not None and t_s > self.t_ref:
             dv = v - self.v_ref
             if self._dv is not None:
@@ -181,7 +188,6 @@ class FrameGates:
         else:
             self._dv = None
         self.v_ref, self.t_ref = v, t_s
-        self._refused_since = None    # a believed frame ends any refusal
         self._recent.append((t_s, v))
         while self._recent and self._recent[0][0] < t_s - DRIVE_MEMORY_S:
             self._recent.popleft()

@@ -144,6 +144,19 @@ def motion_before(p, hist, t0: float, settled_v=None, remeasured_at=None):
     return -v_back, rate, sa
 
 
+def reach(v0: float, v1: float, T: float, a: float) -> tuple[float, float] | None:
+    """The least and the most a crawler travels in T going from speed v0 to v1 when its speed
+    changes at most a per second (slowing down first, then speeding up; and the other way round).
+    None: no such crawler gets from v0 to v1 in T."""
+    k = (v1 - v0) / a
+    if abs(k) > T:
+        return None
+    up, down = (T + k) / 2, (T - k) / 2          # the time speeding up first (the most), slowing first (the least)
+    top, low = v0 + a * up, v0 - a * down
+    return (0.5 * (v0 + low) * down + 0.5 * (low + v1) * (T - down),
+            0.5 * (v0 + top) * up + 0.5 * (top + v1) * (T - up))
+
+
 def ramp_rate(p, a: float, sa: float) -> float | None:
     """A fitted rate, clipped to p.max_accel_m_s2; None if lost in its fit's noise or beyond a
     drive's reach (a jump in the distances, not a ramp)."""

@@ -305,7 +305,7 @@ class Odometer:
         delta = raw[0] - self._last_step
         if dt_prev > 0:
             self._velocity = delta / dt_prev
-            self._gates.measured(self._velocity, t_s)
+            self._gates.measured(self._velocity, t_s, dt_prev)
         self._motion_v = delta * self._jv
         self._last_step, self._last_lat = raw
         self._good_roi, self._good_coarse = img.copy(), None   # the frame buffer goes back to the camera

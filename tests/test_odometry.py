@@ -391,6 +391,24 @@ def test_the_motion_gate_widens_with_the_jitter_a_shaking_car_shows_not_for_a_pu
     assert not smooth.plausible(smooth.v_ref - 0.12, t)
 
 
+def test_a_step_across_dropped_frames_is_a_mean_speed_not_the_speed_after_them():
+    """A crawler that brakes and backs off inside 0.7 s of dropped frames: the step across them is
+    the mean speed (on a periodic wall's alias, +0.05 m/s). Taken as the speed now, the gate refused
+    the true -0.52 m/s measured a frame later, and the tracks followed the alias (+17 %). The mean
+    leaves the gate's reference as it was before the drop, its band grown with the time since."""
+    from crawler.gates import FrameGates
+
+    dt, p = 1 / 30, OdometryParams()
+    g = FrameGates(p)
+    for k in range(30):
+        g.measured(0.3 - 0.8 * k * dt, 4.0 + k * dt)          # braking at 0.8 m/s^2
+    t = 4.0 + 29 * dt
+    g.measured(0.05, t + 0.7, 0.7)                            # across the drop
+    assert g.plausible(-0.52, t + 0.7 + dt)
+    g.measured(0.05, t + 0.7, dt)                             # one frame's step is the speed now
+    assert not g.plausible(-0.52, t + 0.7 + 2 * dt)
+
+
 def test_under_shading_that_stays_put_a_stand_must_be_seen_coming():
     """On a keyframe under the LED's highlight (a pull toward no motion, flow.static_pull) tracks on
     the highlight and on mortar lines along the motion read a stand, frame after frame, while the
