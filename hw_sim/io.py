@@ -37,7 +37,7 @@ GT_HEADER = ",".join(GT_COLUMNS)
 GT_HEADER_V1 = "frame,t_s,distance_m,speed_m_s"     # before pose and disturbance columns
 PTS_HEADER = "# timecode format v2"
 GT_DTYPE = np.dtype([(n, np.int64 if n in ("frame", "lost_before") else np.float64) for n in GT_COLUMNS])
-SIDECAR_VERSION = 2
+SIDECAR_VERSION = 3               # 3: photographed walls laid in random pieces (2 repeated every half image)
 
 
 class H264Writer:

@@ -31,7 +31,7 @@ CONCRETE = {
 # before normalisation, which is measured on a sample of the wall itself).
 MASONRY = {"block_shade": 1.0, "mortar": -2.6, "surface": 1.3,     # surface: concrete-like grain and pores
            "edge_soft_mm": 1.5, "edge_chip_mm": 1.2, "chip_cell_mm": 6.0}
-IMAGE_BLEND_CELLS = 1.7    # the blend between the two image layers varies over this many image heights
+IMAGE_FADE = 0.2           # an image layer fades out over this share of its cells, towards each end
 
 
 def _coarse_grid(rows, cols):
@@ -166,24 +166,30 @@ def load_grey(path: str) -> np.ndarray:
 
 
 def seamless(img: np.ndarray) -> np.ndarray:
-    """The image made periodic: along each axis in turn, cross-faded with itself shifted by half,
-    with a weight that is 1 at the middle (hiding the shifted copy's seam) and 0 at the edges (where
-    the shifted copy runs on across the tile border); variance-preserving, so the contrast stays."""
-    out = img.astype(np.float32)
-    mean = float(out.mean())
-    for axis in (0, 1):
-        n = out.shape[axis]
-        m = (np.sin(np.pi * (np.arange(n) + 0.5) / n) ** 2).astype(np.float32)
-        m = m[:, None] if axis == 0 else m[None, :]
-        a, b = out - mean, np.roll(out, n // 2, axis=axis) - mean
-        out = mean + (a * m + b * (1 - m)) / np.sqrt(m * m + (1 - m) ** 2)
-    return out
+    """The image made periodic without a seam: its periodic component (Moisan's periodic plus smooth
+    decomposition, "Periodic plus smooth image decomposition", 2011), the image less the smooth field
+    whose Laplacian is the jump across its borders. It repeats with the image's own size and nothing
+    shorter: the cross-fade with a half-shifted copy this replaced made every tile repeat at half its
+    height (a photographed wall every 102 mm: tracks took that alias across a drop of frames)."""
+    u = img.astype(np.float64)
+    m, n = u.shape
+    v = np.zeros_like(u)
+    v[0, :], v[-1, :] = u[-1, :] - u[0, :], u[0, :] - u[-1, :]
+    v[:, 0] += u[:, -1] - u[:, 0]
+    v[:, -1] += u[:, 0] - u[:, -1]
+    den = (2 * np.cos(2 * np.pi * np.arange(m) / m)[:, None] + 2 * np.cos(2 * np.pi * np.arange(n) / n)[None, :] - 4)
+    den[0, 0] = 1.0
+    smooth = np.fft.fft2(v) / den
+    smooth[0, 0] = 0.0
+    return (u - np.real(np.fft.ifft2(smooth))).astype(np.float32)
 
 
 class ImageTexture(_Normalised):
-    """A grey image tiled over the wall: made seamless (periodic), a whole number of tiles around
-    the pipe (exact wrap), and two such layers, the second turned 180 deg and shifted, blended by
-    smooth noise (variance-preserving) so that the tiling shows no period along the pipe."""
+    """A grey image laid over the wall in random pieces: along the pipe, cells one image long, each
+    showing the (seamless) image from its own random offset, and a second such layer, the image
+    turned 180 deg, in cells staggered by half; each layer fades out towards its cells' ends, where
+    the other shows (variance-preserving). A whole number of images fits around the pipe (exact
+    wrap); along it, nothing repeats: a real wall does not."""
 
     def __init__(self, seed: int, path: str, mm_per_px: float, mm_per_texel: float):
         tile = seamless(load_grey(path))
@@ -192,20 +198,25 @@ class ImageTexture(_Normalised):
         self.h, self.w = tile.shape
         self.mean = float(tile.mean())
 
-    def _layer(self, rows, cols, tex, which: int, dr: float, dc: float):
+    def _layer(self, rows, cols, tex, which: int):
+        """One layer: its image sampled at rows x cols, and the share each row shows of it."""
         around = max(1, round(tex.n_cols * tex.m_per_texel_circ * 1000 / (self.w * self.mm_per_px)))
-        x = (cols * around * self.w / tex.n_cols + dc) % self.w               # image columns around
-        y = (rows * self.mm / self.mm_per_px + dr) % self.h                   # image rows along the pipe
-        mx = np.broadcast_to(x.astype(np.float32)[None, :], (len(rows), len(cols)))
-        my = np.broadcast_to(y.astype(np.float32)[:, None], (len(rows), len(cols)))
-        return cv2.remap(self.tiles[which], np.ascontiguousarray(mx), np.ascontiguousarray(my), cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_WRAP) - self.mean
+        y = rows * self.mm / self.mm_per_px + which * self.h / 2              # image rows along the pipe
+        cell = np.floor(y / self.h)
+        dr, dc = (hash_uniform(self.seed, 90 + 2 * which + k, cell, 0).astype(np.float64) * size
+                  for k, size in ((0, self.h), (1, self.w)))
+        x = cols * around * self.w / tex.n_cols                                # image columns around
+        mx = ((x[None, :] + dc[:, None]) % self.w).astype(np.float32)
+        my = np.broadcast_to(((y + dr) % self.h).astype(np.float32)[:, None], (len(rows), len(cols)))
+        img = cv2.remap(self.tiles[which], mx, np.ascontiguousarray(my), cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_WRAP) - self.mean
+        u = y / self.h - cell                                                  # where in its cell
+        return img, soft_step(np.minimum(u, 1 - u), 0.25 - IMAGE_FADE / 2, IMAGE_FADE).astype(np.float32)
 
     def _raw(self, rows, cols, tex):
-        a = self._layer(rows, cols, tex, 0, 0.0, 0.0)
-        b = self._layer(rows, cols, tex, 1, self.h * 0.618, self.w * 0.382)
-        cell = IMAGE_BLEND_CELLS * self.h * self.mm_per_px / self.mm
-        m = soft_step(value_noise(rows, cols, cell, tex.n_cols, self.seed, 90), 0.3, 0.4).astype(np.float32)
+        a, m = self._layer(rows, cols, tex, 0)
+        b, _ = self._layer(rows, cols, tex, 1)       # (its share is 1 - a's: its cells' ends are a's middles)
+        m = m[:, None]
         return (a * m + b * (1 - m)) / np.sqrt(m * m + (1 - m) ** 2)
 
 
