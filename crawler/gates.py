@@ -208,6 +208,18 @@ class FrameGates:
             self.v_ref = math.copysign(moving[int(0.9 * (len(moving) - 1))], way)
             self.t_ref, self._dv = t_s, None
 
+    def wraps(self, dv: float, rows: int, dt: float, rows_per_m: float, t_s: float) -> list[float]:
+        """The shifts a phase correlation's dv rows (it wraps every `rows`) may stand for, dt after the
+        last tracked frame: the wrap nearest what v_ref predicts; and dv as found too, once the speed
+        may have changed by half a wrap since it was measured. (A crawler reversed inside a blackout:
+        the speed before, +0.63 m/s, chose the wrap 74 mm ahead of one backing at 0.7 m/s, and it was
+        never tracked again, for 3 s: +71 %.)"""
+        if self.v_ref is None or not rows_per_m:
+            return [dv]
+        near = dv + rows * round((self.v_ref * dt * rows_per_m - dv) / rows)
+        change = (self.p.max_accel_m_s2 * max(t_s - self.t_ref, 0.0) + self.p.speed_tol_m_s) * dt * abs(rows_per_m)
+        return [near, dv] if near != dv and change >= rows / 2 else [near]
+
     def plausible(self, v: float, t_s: float, pulled: bool = False, frame_s: float = 0.0,
                   set_off: float | None = None) -> bool:
         """Could the crawler have gone from v_ref (at t_ref) to v by t_s? `pulled`: read on a

@@ -213,28 +213,25 @@ class Odometer:
             self._views[n] = tuple(np.tile(a, (n, 1)) for a in self.view)
         return self._views[n]
 
-    def _coarse_guess(self, img, t_s):
-        """(step, lateral) from a phase correlation against the last tracked frame, or None.
+    def _coarse_guess(self, img, t_s) -> list:
+        """[(step, lateral)] from a phase correlation against the last tracked frame ([]: none).
 
         Only needed when the constant-velocity guess failed (start, a jerk, after a loss): it costs
-        as much as the rest of the frame. The shift it finds wraps around the image; after a gap, the
-        wrap nearest to what the speed before the gap predicts is taken.
+        as much as the rest of the frame. The shift it finds wraps around the image: the wraps the
+        speed measured last allows are tried (FrameGates.wraps).
         """
         if self._good_roi is None or self._good_roi.shape != img.shape:
-            return None
+            return []
         fp, flat = self.params.flow, self._kf is not None and self._kf.flat
         if self._good_coarse is None or self._good_coarse[0] != flat:
             self._good_coarse = (flat, flow.coarse_image(self._good_roi, fp, flat))
         (du, dv), response = flow.coarse_shift(self._good_coarse[1], flow.coarse_image(img, fp, flat),
                                                self._window, self._coarse_scale)
         if response < self.params.min_response:
-            return None
-        if self._gates.v_ref is not None and self._jv:
-            rows = self._good_roi.shape[0]
-            expected = self._gates.v_ref * (t_s - self._last_good_t) * self._jv
-            dv += rows * round((expected - dv) / rows)
+            return []
         jyv, jyu, jsv, jsu = self._jac
-        return self._last_step + jyv * dv + jyu * du, self._last_lat + jsv * dv + jsu * du
+        return [(self._last_step + jyv * d + jyu * du, self._last_lat + jsv * d + jsu * du)
+                for d in self._gates.wraps(dv, img.shape[0], t_s - self._last_good_t, self._jv, t_s)]
 
     def _track(self, img, step_guess, lat_guess):
         """Track the keyframe's features that should be visible: (indices, positions, n visible)."""
@@ -246,8 +243,7 @@ class Odometer:
         p = self.params
         idx, pts1, n_visible = self._track(img, *self.guess(t_s))
         if len(idx) < max(p.min_tracks, p.retry_share * n_visible) or self.lost_frames:
-            coarse = self._coarse_guess(img, t_s)
-            if coarse is not None:
+            for coarse in self._coarse_guess(img, t_s):
                 idx2, pts2, n2 = self._track(img, *coarse)
                 if len(idx2) > len(idx):
                     idx, pts1, n_visible = idx2, pts2, n2

@@ -409,6 +409,19 @@ def test_a_step_across_dropped_frames_is_a_mean_speed_not_the_speed_after_them()
     assert not g.plausible(-0.52, t + 0.7 + 2 * dt)
 
 
+def test_a_phase_shift_s_wrap_is_chosen_by_the_speed_only_while_that_speed_still_holds():
+    """The shift wraps every 360 rows (here 77 mm of wall). Just after 0.6 m/s was measured, a
+    reading of -110 rows is the wrap 250 rows ahead (a frame's 94 rows at that speed); 0.8 s later
+    the speed may have changed by more than half a wrap a frame, and the shift as found is tried too."""
+    from crawler.gates import FrameGates
+
+    dt, g = 1 / 30, FrameGates(OdometryParams())
+    g.measured(0.6, 1.0)
+    assert g.wraps(-110.0, 360, dt, 4700.0, 1.0 + dt) == [250.0]
+    assert g.wraps(-110.0, 360, dt, 4700.0, 1.8 + dt) == [250.0, -110.0]
+    assert g.wraps(20.0, 360, dt, 4700.0, 1.8 + dt) == [20.0]      # nearest already
+
+
 def test_under_shading_that_stays_put_a_stand_must_be_seen_coming():
     """On a keyframe under the LED's highlight (a pull toward no motion, flow.static_pull) tracks on
     the highlight and on mortar lines along the motion read a stand, frame after frame, while the

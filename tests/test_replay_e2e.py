@@ -70,6 +70,23 @@ def test_reverse_and_stop_and_go(render_run, crawlerd, tmp_path):
     assert rc == 0 and err_pct(s, run["truth"]) < 0.3
 
 
+def test_a_crawler_that_reverses_inside_a_blackout_is_tracked_again_when_the_light_returns(
+        render_run, crawlerd, tmp_path):
+    """It brakes from 0.7 m/s and backs off at 0.7 m/s, all at 1.5 m/s^2, in the dark. Light back,
+    the phase correlation's shift wraps every 74 mm of wall: the wrap the speed before (+0.63 m/s)
+    predicts was 74 mm ahead of the truth, and nothing was tracked again: +1.00 m where it was at
+    -0.56 m. A speed that may have changed by half a wrap since it was measured chooses no wrap."""
+    run = render_run("rev-dark", profile="reverse", speed_m_s=0.7, accel_m_s2=1.5, duration_s=4.0, tilt_deg=15,
+                     led_blackouts=((1.2, 2.0),), seed=3)
+    log = tmp_path / "rev-dark.jsonl"
+    rc, s, _ = crawlerd("--replay", run["h264"], "--tilt", 15, "--log", log)
+    assert rc == 0
+    rows = [json.loads(line) for line in log.read_text().splitlines()]
+    assert all(r["tracking"] for r in rows if r["t_s"] >= 2.2)
+    assert abs(s["distance_m"] - run["truth"]["true_distance_m"]) < 0.05
+    assert abs(s["distance_m"] - run["truth"]["true_distance_m"]) < 2 * rows[-1]["sigma_m"]
+
+
 def test_a_featureless_patch_is_bridged_and_said_so(render_run, crawlerd, tmp_path):
     run = render_run("wet", speed_m_s=0.2, featureless=((0.15, 0.35),), duration_s=3.0)
     log = tmp_path / "wet.jsonl"
