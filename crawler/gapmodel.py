@@ -26,8 +26,7 @@ class BridgeParams:
     ramp_dv_m_s: float = 0.05         # a speed change across a gap below this is the fits' error, not a ramp
     settle_s: float = 0.25            # after a fresh start, measure the speed this long before settling
     across_s: float = 0.15            # a step measured across more unseen time is checked against the speeds
-    across_accel_m_s2: float = 1.5    # ...at its ends, at the rates a drive has (the odometer's gates' bound)
-    across_speed_m_s: float = 0.05    # ...each known within this
+    across_speed_m_s: float = 0.05    # ...at its ends, each known within this, at the rates the model allows
     max_bridge_s: float = 30.0        # beyond this the model is a guess: the speed fades to 0 over it
     pose_sigma_m: float = 0.0         # the camera's pitching on the car, as wall metres (measurement.py)
     jitter_memory: float = 0.05       # weight of each frame in the running jitter estimate (~1 s at 30 fps)
