@@ -422,6 +422,19 @@ def test_a_phase_shift_s_wrap_is_chosen_by_the_speed_only_while_that_speed_still
     assert g.wraps(20.0, 360, dt, 4700.0, 1.8 + dt) == [20.0]      # nearest already
 
 
+def test_a_wet_wall_s_smoothed_noise_is_no_texture_for_features_whatever_the_wall_before():
+    """On a photographed brick wall (2.9 DN of fine texture dry) a wet stretch left the encoder's
+    smoothed noise, 0.5 DN: above a quarter of the texture remembered while the tracks, reading a
+    stand on what stayed put, took it down with them, so the features read a 3.6 s stand while
+    the crawler drove at 0.1 m/s (-34.5 %). Under 0.8 DN a frame is no texture at any time."""
+    from crawler.gates import FrameGates
+
+    g = FrameGates(OdometryParams())
+    for _ in range(40):
+        g.remember(np.full((8, 8), 120, np.uint8), 1.2)    # a faint wall measured lately
+    assert g.textured(1.0) and not g.textured(0.5)
+
+
 def test_under_shading_that_stays_put_a_stand_must_be_seen_coming():
     """On a keyframe under the LED's highlight (a pull toward no motion, flow.static_pull) tracks on
     the highlight and on mortar lines along the motion read a stand, frame after frame, while the
