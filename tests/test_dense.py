@@ -188,7 +188,8 @@ def test_a_slow_start_that_does_not_add_up_across_its_frames_is_not_believed():
     """Lines along the motion say nothing of it, and what stays put reads next to no shift frame by
     frame, a pixel or two each way: three in a row, just over stop_px, were a crawler setting off (a
     lobe run on a wet brick wall: -36 %). Across the three frames at once it reads no sum of them.
-    On four walls of eight (seeds 1-8) the shift believed 13 such starts without the check."""
+    On four walls of eight (seeds 1-8) the shift believed 13 such starts without the check (8 since
+    shifts that swing each way are no motion either)."""
     believed = {}
     for slow in (0.0, DenseParams().slow_px):
         shifts = []
@@ -196,7 +197,7 @@ def test_a_slow_start_that_does_not_add_up_across_its_frames_is_not_believed():
             dense = DenseShift((240, 240), DenseParams(slow_px=slow))
             shifts += [s for i, f in enumerate(lines_along_the_motion(seed)) if (s := dense.shift(f, i / 30))]
         believed[slow] = len(shifts)
-    assert believed[0.0] >= 10 and believed[DenseParams().slow_px] <= 1
+    assert believed[0.0] >= 5 and believed[DenseParams().slow_px] <= 1
 
 
 @pytest.mark.parametrize("every", [3, 2])
@@ -227,3 +228,24 @@ def test_one_odd_timestamp_is_no_frame_period():
         if found is not None and i > 31:
             covered += round((t - found[2]) * 30)
     assert covered > 40
+
+
+def test_shifts_that_swing_each_way_are_no_motion():
+    """A faint wall's noise read +4.9, +0.7 and -2.0 px on three frames in a row, a 'steady brake'
+    within a pixel; believed as a crawl, it settled 2 s of a drive at 30 px a frame as a stand (a
+    lobe run on a wet brick wall: -26 %). Their net is under stop_px a frame: no motion, like a
+    stand's. The same three the same way (a slow start) still add up."""
+    rng = np.random.default_rng(4)
+    wall = cv2.GaussianBlur(rng.uniform(0, 255, (900, 300)).astype(np.float32), (0, 0), 2.0)
+
+    def believed(steps):
+        dense, y, out = DenseShift((240, 240), DenseParams()), 100.0, []
+        for i, dy in enumerate([30.0] * (DenseParams().warmup + 1) + steps):   # (the running mean warms up)
+            y += dy
+            m = np.float32([[1, 0, -30], [0, 1, -y]])
+            f = cv2.warpAffine(wall, m, (240, 240), flags=cv2.INTER_LINEAR)
+            out.append(dense.shift(np.clip(f, 0, 255).astype(np.uint8), i / 30))
+        return [s for s in out if s is not None]
+
+    assert not believed([5.0, 1.0, -2.0])
+    assert believed([3.0, 5.0, 7.0])
