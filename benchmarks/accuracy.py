@@ -62,13 +62,14 @@ for _name, (_fields, _extra) in CASES.items():
 
 def render(out: Path, name: str, fields: dict) -> Path:
     from hw_sim import SimConfig, write_run
+    from hw_sim.io import SIDECAR_VERSION
 
     json_path = out / f"{name}.json"
     cfg = SimConfig(**fields)
     if json_path.exists():
         meta = json.loads(json_path.read_text())
         # a photographed wall rendered before sidecar 3 repeated every half image: render it again
-        current = meta.get("hw_sim_sidecar", 0) >= 3 or cfg.texture != "image"
+        current = meta.get("hw_sim_sidecar", 0) >= SIDECAR_VERSION or cfg.texture != "image"
         if current and meta["config"] == json.loads(json.dumps(cfg.to_dict())):
             return json_path
     write_run(cfg, out, name)

@@ -34,7 +34,7 @@ from .framenoise import FrameNoise
 from .gapmodel import (BridgeParams, Gap, drive_rate, model_time, model_var, moving_speed, rate_range_var, rejoin,
                        see_stand, set_off, settled_travel, stand_state, standing, start_rate_seen, stops, travel,
                        travel_to)
-from .motionfit import TIME_EPS, motion_before, ramp_rate, reach
+from .motionfit import TIME_EPS, could_go, motion_before, ramp_rate
 from .motionfit import is_rescale as _is_rescale, ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured
 from .motionfit import slope as _slope
 
@@ -224,7 +224,7 @@ class GapBridge:
             # another fresh start while the last one settles: what was measured since that one
             # settles the gap (or, too short, reopens it); this frame's motion is unknown again
             self._settle_or_reopen()
-        if self._gap is None and self._hist and (not est.continuous or est.t_s - self._hist[-1][0] > self.p.across_s):
+        if self._gap is None and self._hist and (not est.continuous or est.t_s - self._hist[-1][0] > self.p.across_s + TIME_EPS):
             self._gap = self._open_gap()      # a fresh start right after a measured frame: a gap of one;
                                               # or frames dropped, measured across: checked as a gap's
         # before the gap closes: its model is in the old metres. The samples after a gap inside the
@@ -284,7 +284,7 @@ class GapBridge:
         see_stand(self.p, g, None)    # measured again: a stand still shown ends (one too short is none)
         T = est.t_s - g.t0
         restarted, self._restarted = self._restarted, None
-        if est.continuous and restarted is None and T > self.p.across_s and g.v0 is not None and not g.before_reset_m:
+        if est.continuous and restarted is None and T > self.p.across_s + TIME_EPS and g.v0 is not None and not g.before_reset_m:
             g.across = True           # measured across: the step stands unless the speed after says no
             self._settling = (est.t_s, [(est.t_s, est.distance_m)])
         elif est.continuous and restarted is None:   # measured across the gap: the odometer's distance
@@ -339,7 +339,7 @@ class GapBridge:
             if stopped and v_end * v1 <= 0:       # a speed at t1 against the motion after: it stood then
                 v_end, a1 = 0.0, 0.0
         if v1 is None and g.across:   # measured across, and lost again too soon to check: it stands
-            self._keep_across(g)
+            self._keep_across(g, samples[0][1])
             return
         if v1 is None:                # reopen: drop what the short measurement added to the history
             while self._hist and self._hist[-1][0] >= t1:
@@ -350,12 +350,14 @@ class GapBridge:
             return
         self._settled_v = (samples[-1][0], v1)
         if g.across and self._reachable(g, T, samples[0][1], v_end):
-            self._keep_across(g, (samples[-1][0], v1))
+            self._keep_across(g, samples[0][1], (samples[-1][0], v1))
             return
         after = set_off(self.p, g, t1, v_end, a1)          # (a stand shown, a start seen after it)
         corrected, unseen_var = (after, 0.0) if after is not None else settled_travel(self.p, g, T, v_end, a1)
         correction = g.d0 + corrected - (samples[0][1] + self.offset_m)
-        self._carry(g.t0, t1, corrected)
+        # what the offset carries (measured across, the odometer's distance holds its own step, which
+        # a re-measure scales itself: +31 mm leaked with an alias refused, a review's case)
+        self._carry(g.t0, t1, corrected - (samples[0][1] - g.vis0 if g.across else 0.0))
         self.offset_m += correction
         self._out_m += correction
         # the samples the speed after was read from are the history now, also those a reopened gap
@@ -369,24 +371,19 @@ class GapBridge:
         self._gap = None
 
     def _reachable(self, g: Gap, T: float, d1: float, v1: float) -> bool:
-        """Could a crawler have gone the odometer's step across the gap, from the speed before it to
-        the one after, at the rates the motion model allows? Not on a periodic wall's alias: a
-        reversal inside 0.7 s of dropped frames read 0.20 m (two 102 mm periods) forward of the
-        truth; nor where no part of the wall was in both frames and the tracks settled on the
-        light's shading, which stays put (the same reversal on a wall that does not repeat read
-        +8 mm for -159 mm). The motion model carries such a gap instead."""
+        """Could a crawler have gone the odometer's step across the gap (motionfit.could_go)? Not
+        on a periodic wall's alias: a reversal inside 0.7 s of dropped frames read 0.20 m (two 102 mm
+        periods) forward of the truth; nor where no part of the wall was in both frames and the
+        tracks settled on the light's shading, which stays put (the same reversal on a wall that
+        does not repeat read +8 mm for -159 mm). The motion model carries such a gap instead."""
         p = self.p
-        span = reach(g.v0, v1, T, p.max_accel_m_s2)
-        if span is None:              # too far apart for the model's drive: as far as their errors allow
-            give = math.copysign(p.across_speed_m_s, v1 - g.v0)
-            span = reach(g.v0 + give, v1 - give, T, p.max_accel_m_s2)
-        slack = p.across_speed_m_s * T
-        return span is None or span[0] - slack <= d1 + self.offset_m - g.d0 <= span[1] + slack
+        return could_go(d1 + self.offset_m - g.d0, g.v0, v1, T, p.max_accel_m_s2, p.across_speed_m_s)
 
-    def _keep_across(self, g: Gap, settled_v=None):
-        """The step measured across the gap stands (as measured, no model's uncertainty)."""
+    def _keep_across(self, g: Gap, d1: float, settled_v=None):
+        """The step measured across the gap (to the odometer's d1) stands: as measured, with a
+        keyframe step's scale error (the gap's close had started the next step at d1)."""
         self._gap, self._settled_v = None, settled_v or self._settled_v
-        self.var_meas += self.p.step_floor_m ** 2
+        self.var_meas += self.p.step_floor_m ** 2 + (self.p.scale_sigma * (d1 - g.vis0)) ** 2
         self._carry(g.t0, g.t0, 0.0)
 
     def _carry(self, t0: float, t1: float, metres: float):

@@ -175,9 +175,11 @@ class FrameGates:
         periodic wall's alias across a reversal in a drop read the mean +0.05 m/s; held as the
         speed now, it refused the true -0.52 m/s after, and the tracks followed the alias: +17 %.)"""
         self._refused_since = None    # a believed frame ends any refusal
-        if over_s > self.p.across_s:
+        recent = 0.0 < t_s - self.t_ref <= self.p.across_s + 1e-6     # (frame times are sums of intervals)
+        if over_s > self.p.across_s + 1e-6:
+            self._dv = None           # ...and the change across it is no jitter
             return
-        if self.v_ref is not None and t_s > self.t_ref:
+        if self.v_ref is not None and recent:   # (a change from a speed before a gap is none either)
             dv = v - self.v_ref
             if self._dv is not None:
                 d2 = dv - self._dv
@@ -214,11 +216,12 @@ class FrameGates:
         may have changed by half a wrap since it was measured. (A crawler reversed inside a blackout:
         the speed before, +0.63 m/s, chose the wrap 74 mm ahead of one backing at 0.7 m/s, and it was
         never tracked again, for 3 s: +71 %.)"""
-        if self.v_ref is None or not rows_per_m:
+        if self.v_ref is None or not rows_per_m or not dv:
             return [dv]
-        near = dv + rows * round((self.v_ref * dt * rows_per_m - dv) / rows)
+        # the frames overlap only if the shift is under a wrap: dv or the wrap on its other side
+        both = sorted((dv, dv - math.copysign(rows, dv)), key=lambda d: abs(d - self.v_ref * dt * rows_per_m))
         change = (self.p.max_accel_m_s2 * max(t_s - self.t_ref, 0.0) + self.p.speed_tol_m_s) * dt * abs(rows_per_m)
-        return [near, dv] if near != dv and change >= rows / 2 else [near]
+        return both if change >= rows / 2 else both[:1]
 
     def plausible(self, v: float, t_s: float, pulled: bool = False, frame_s: float = 0.0,
                   set_off: float | None = None) -> bool:

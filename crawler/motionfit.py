@@ -157,6 +157,20 @@ def reach(v0: float, v1: float, T: float, a: float) -> tuple[float, float] | Non
             0.5 * (v0 + top) * up + 0.5 * (top + v1) * (T - up))
 
 
+def could_go(step: float, v0: float, v1: float, T: float, a: float, speed_error: float) -> bool:
+    """Could a crawler go `step` in T from speed v0 to v1, changing speed at up to a (each speed
+    known within speed_error)? Speeds too far apart for a are first brought speed_error closer each,
+    and if still, joined by the one ramp between them (a reversal at 1.2 m/s^2 against a = 1.0:
+    any step had passed, an alias kept at 227 sigma)."""
+    span = reach(v0, v1, T, a)
+    if span is None:
+        give = math.copysign(speed_error, v1 - v0)
+        v0, v1 = v0 + give, v1 - give
+        span = reach(v0, v1, T, max(a, abs(v1 - v0) / T))
+    slack = speed_error * T
+    return span[0] - slack <= step <= span[1] + slack
+
+
 def ramp_rate(p, a: float, sa: float) -> float | None:
     """A fitted rate, clipped to p.max_accel_m_s2; None if lost in its fit's noise or beyond a
     drive's reach (a jump in the distances, not a ramp)."""

@@ -189,7 +189,9 @@ class ImageTexture(_Normalised):
     showing the (seamless) image from its own random offset, and a second such layer, the image
     turned 180 deg, in cells staggered by half; each layer fades out towards its cells' ends, where
     the other shows (variance-preserving). A whole number of images fits around the pipe (exact
-    wrap); along it, nothing repeats: a real wall does not."""
+    wrap); along it nothing repeats with a period, as on a real wall. Pieces of the one photograph
+    still recur at random distances (a 60 mm patch's best match within 0.4 m correlates 0.4-0.5 in
+    the median, over 0.9 for a few %), where the old cross-fade repeated every half image (0.99)."""
 
     def __init__(self, seed: int, path: str, mm_per_px: float, mm_per_texel: float):
         tile = seamless(load_grey(path))

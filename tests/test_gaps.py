@@ -1170,3 +1170,47 @@ def test_reach_spans_what_a_drive_limited_to_a_rate_travels_between_two_speeds()
     assert reach(0.0, 1.0, 0.9, 1.0) is None               # faster than it can
     lo, hi = reach(0.05, -0.5, 0.7, 1.5)
     assert lo < 0.5 * (0.05 - 0.5) * 0.7 < hi < 0.0
+
+
+def test_an_alias_across_a_reversal_faster_than_the_model_s_drive_is_refused_too():
+    """A review's case: 0.5 m/s to -0.5 m/s at 1.5 m/s^2 inside a 0.7 s drop. The speeds at the ends
+    are farther apart than the model's 1.0 m/s^2 joins; the check had let any step through then, an
+    alias of +0.20 m kept at 227 sigma. The one ramp between them refuses it, and keeps the truth."""
+    def truth(t):
+        u = min(max(t - 4.0, 0.0), 1.0 / 1.5)              # the reversal's ramp, from 4 s
+        return 0.5 * min(t, 4.0) + 0.5 * u - 0.75 * u * u + -0.5 * max(t - 4.0 - 1.0 / 1.5, 0.0)
+
+    drop = (4.0 + 1 / 3 - 0.35, 4.0 + 1 / 3 + 0.35)
+    for alias, worst in ((0.2048, 0.01), (0.0, 1e-9)):
+        bridge, err, sig = GapBridge(), [], []
+        for t in np.arange(0, 6.5, 1 / FPS):
+            if drop[0] <= t < drop[1]:
+                continue
+            b = bridge.update(est(t, truth(t) + (alias if t >= drop[1] else 0.0), keyframe=round(t * FPS) % 4 == 0))
+            err.append(b.distance_m - truth(t))
+            sig.append(b.sigma_m)
+        assert abs(err[-1]) < worst and abs(err[-1]) <= 2 * sig[-1] + 1e-9
+
+
+def test_a_refused_step_across_a_gap_scales_with_tilt_auto_s_re_measure_as_the_model_s():
+    """Tilt auto measures every step again at a better tilt (scale 1 / 0.93 here). A step across a
+    drop refused as an alias is the model's in the offset, while the odometer's distance keeps (and
+    scales) its own: the bridge must carry only what its offset changed by, or the alias leaks back
+    (+31 mm, a review's case)."""
+    k, v, drop, t_fix = 0.93, 0.3, (2.0, 2.7), 4.0
+    for alias in (0.0, 0.2048):
+        bridge, vision, fixed, prev = GapBridge(), 0.0, False, 0.0
+        for i in range(int(6.0 * FPS)):
+            t = i / FPS
+            if drop[0] <= t < drop[1]:
+                continue
+            vision += (v * (t - prev) * (1.0 if fixed else k) if i else 0.0) + (alias if prev < drop[0] <= t else 0.0)
+            prev = t
+            e = est(t, vision, keyframe=i % 4 == 0)
+            if not fixed and t >= t_fix - 1e-9:
+                fixed = True
+                e.rescaled_m, e.rescaled_over_m, e.rescaled_since_s = vision * (1 / k - 1), vision / k, 0.0
+                vision += e.rescaled_m
+                e.distance_m = vision
+            b = bridge.update(e)
+        assert abs(b.distance_m - v * t) < 1e-3

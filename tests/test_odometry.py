@@ -410,16 +410,18 @@ def test_a_step_across_dropped_frames_is_a_mean_speed_not_the_speed_after_them()
 
 
 def test_a_phase_shift_s_wrap_is_chosen_by_the_speed_only_while_that_speed_still_holds():
-    """The shift wraps every 360 rows (here 77 mm of wall). Just after 0.6 m/s was measured, a
-    reading of -110 rows is the wrap 250 rows ahead (a frame's 94 rows at that speed); 0.8 s later
-    the speed may have changed by more than half a wrap a frame, and the shift as found is tried too."""
+    """The shift wraps every 360 rows (here 77 mm of wall), and frames overlap only within a wrap:
+    a reading is the shift as found or the wrap on its other side. Just after 0.6 m/s was measured,
+    -110 rows is the wrap 250 rows ahead (a frame's 94 rows at that speed); 0.8 s later the speed
+    may have changed by more than half a wrap a frame, and the other one is tried too."""
     from crawler.gates import FrameGates
 
     dt, g = 1 / 30, FrameGates(OdometryParams())
     g.measured(0.6, 1.0)
     assert g.wraps(-110.0, 360, dt, 4700.0, 1.0 + dt) == [250.0]
     assert g.wraps(-110.0, 360, dt, 4700.0, 1.8 + dt) == [250.0, -110.0]
-    assert g.wraps(20.0, 360, dt, 4700.0, 1.8 + dt) == [20.0]      # nearest already
+    assert g.wraps(20.0, 360, dt, 4700.0, 1.0 + dt) == [20.0]         # nearest already
+    assert g.wraps(20.0, 360, dt, 4700.0, 1.8 + dt) == [20.0, -340.0]
 
 
 def test_a_wet_wall_s_smoothed_noise_is_no_texture_for_features_whatever_the_wall_before():
