@@ -239,13 +239,14 @@ class Odometer:
         return self.tracker(kf, img, step_guess, lat_guess, self._view_of(kf.n0), self.params.flow)
 
     def _track_guessed(self, img, t_s):
-        """Constant velocity first; if most features are then lost, the global shift."""
+        """Constant velocity first; if most features are then lost, the global shift (its other wrap
+        only where it tracks: else what the likelier one says is visible decides a renewal)."""
         p = self.params
         idx, pts1, n_visible = self._track(img, *self.guess(t_s))
         if len(idx) < max(p.min_tracks, p.retry_share * n_visible) or self.lost_frames:
-            for coarse in self._coarse_guess(img, t_s):
+            for k, coarse in enumerate(self._coarse_guess(img, t_s)):
                 idx2, pts2, n2 = self._track(img, *coarse)
-                if len(idx2) > len(idx):
+                if len(idx2) > len(idx) and (not k or len(idx2) >= p.min_tracks):
                     idx, pts1, n_visible = idx2, pts2, n2
         return idx, pts1, n_visible
 
