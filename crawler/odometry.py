@@ -84,6 +84,7 @@ class Odometer:
         self._spread = SpreadGate(self.params, self.m_per_px)
         self._blind_restart, self._resumed = False, False   # _resumed: the keyframe is a saved one (a clear match)
         self._copy = False         # this frame is, inside a gap, the encoder's copy of the last (gates.py)
+        self._energy = math.inf    # this frame's fine texture (flow.texture_energy)
 
     def set_distance(self, distance: float = 0.0):
         """Count from `distance` now, without losing track (an operator's reset mid-run)."""
@@ -99,7 +100,7 @@ class Odometer:
         x, y, w, h = self.roi
         roi = frame[y:y + h, x:x + w]
         try:
-            energy = flow.texture_energy(roi)
+            self._energy = energy = flow.texture_energy(roi)
             self._copy = self._gates.copied(roi, self._unmeasured_since is not None)
             if not self._gates.textured(energy) or self._gates.dark(roi):   # (a blackout's noise is texture)
                 return self._untextured(roi, t_s, energy)
@@ -269,9 +270,10 @@ class Odometer:
         return c if enough and self._spread.calm(c.step, c.sigma, c.ratio) else None
 
     def _plausible(self, c: Consensus, t_s: float) -> bool:
-        """The speed since the last good frame (a fresh keyframe counts as one) against the one before (gates.py)."""
-        dt = t_s - self._last_good_t
-        return dt <= 0 or self._gates.plausible((c.step - self._last_step) / dt, t_s, self._kf.flat,
+        """The speed since the last good frame (a fresh keyframe counts as one) against the one before
+        (gates.py); on a faint frame, as under a pull, a stand must be seen coming (faint_texture_dn)."""
+        dt, pulled = t_s - self._last_good_t, self._kf.flat or self._energy < self.params.faint_texture_dn
+        return dt <= 0 or self._gates.plausible((c.step - self._last_step) / dt, t_s, pulled,
                                                  min(dt, t_s - (self._prev_t or 0.0)), self._dense.stands.take_set_off())
 
     def _measure(self, img, t_s, rescue: bool = True) -> Estimate:

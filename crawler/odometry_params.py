@@ -32,8 +32,9 @@ class OdometryParams:
     min_span_share: float = 0.2       # rolling shutter: a feature exposed over less of the interval is dropped
     full_quality_tracks: float = 3.0  # quality 1 needs this many times min_tracks agreeing
     min_texture_share: float = 0.25   # less fine texture than this share of the recent frames': not measured
-    min_texture_dn: float = 0.8       # ...nor with less than this at all: a black frame, or a wet wall's noise the
-                                      # encoder smoothed (0.4-0.7; a dry wall at CRF 40 1.1 and up)
+    min_texture_dn: float = 0.3       # ...nor with less than this at all (a black frame)
+    faint_texture_dn: float = 0.8     # ...and with less, a stand must be seen coming (a wet wall's noise the
+                                      # encoder smoothed, 0.4-0.7, stays put; a dry wall at CRF 40 1.1 and up)
     texture_memory: float = 0.05      # how fast that reference follows the wall (per measured frame)
     max_accel_m_s2: float = 1.5       # a consensus whose speed changed faster than this is refused...
     speed_tol_m_s: float = 0.03       # ...beyond this much noise...

@@ -424,17 +424,21 @@ def test_a_phase_shift_s_wrap_is_chosen_by_the_speed_only_while_that_speed_still
     assert g.wraps(20.0, 360, dt, 4700.0, 1.8 + dt) == [20.0, -340.0]
 
 
-def test_a_wet_wall_s_smoothed_noise_is_no_texture_for_features_whatever_the_wall_before():
+def test_on_a_faint_frame_a_stand_must_be_seen_coming():
     """On a photographed brick wall (2.9 DN of fine texture dry) a wet stretch left the encoder's
-    smoothed noise, 0.5 DN: above a quarter of the texture remembered while the tracks, reading a
-    stand on what stayed put, took it down with them, so the features read a 3.6 s stand while
-    the crawler drove at 0.1 m/s (-34.5 %). Under 0.8 DN a frame is no texture at any time."""
+    smoothed noise, 0.5 DN, which stays put in the image: the tracks on it read a 3.6 s stand while
+    the crawler drove at 0.1 m/s (-34.5 %). On a frame that faint (under faint_texture_dn), as under
+    a pull, a stand must be seen coming; a drive measured on it still passes."""
     from crawler.gates import FrameGates
 
-    g = FrameGates(OdometryParams())
-    for _ in range(40):
-        g.remember(np.full((8, 8), 120, np.uint8), 1.2)    # a faint wall measured lately
-    assert g.textured(1.0) and not g.textured(0.5)
+    dt, p = 1 / 30, OdometryParams()
+    g = FrameGates(p)
+    for k in range(30):
+        g.measured(0.1, k * dt)
+    t = 29 * dt
+    assert not any(g.plausible(0.0, t + k * dt, True, dt) for k in range(1, 45))   # faint: as pulled
+    assert g.plausible(0.1, t + 46 * dt, True, dt)
+    assert 0.5 < p.faint_texture_dn < 1.1          # a wet wall's smoothed noise; a dry wall at CRF 40
 
 
 def test_under_shading_that_stays_put_a_stand_must_be_seen_coming():
