@@ -212,10 +212,10 @@ class FrameGates:
 
     def wraps(self, dv: float, rows: int, dt: float, rows_per_m: float, t_s: float) -> list[float]:
         """The shifts a phase correlation's dv rows (it wraps every `rows`) may stand for, dt after the
-        last tracked frame: the wrap nearest what v_ref predicts; and dv as found too, once the speed
-        may have changed by half a wrap since it was measured. (A crawler reversed inside a blackout:
-        the speed before, +0.63 m/s, chose the wrap 74 mm ahead of one backing at 0.7 m/s, and it was
-        never tracked again, for 3 s: +71 %.)"""
+        last tracked frame: dv or the wrap on its other side, the one nearer what v_ref predicts;
+        both, that one first, once the speed may have changed by half a wrap since it was measured.
+        (A crawler reversed inside a blackout: the speed before, +0.63 m/s, chose the wrap 74 mm
+        ahead of one backing at 0.7 m/s, and it was never tracked again, for 3 s: +71 %.)"""
         if self.v_ref is None or not rows_per_m or not dv:
             return [dv]
         # the frames overlap only if the shift is under a wrap: dv or the wrap on its other side
