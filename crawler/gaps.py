@@ -350,7 +350,7 @@ class GapBridge:
             return
         self._settled_v = (samples[-1][0], v1)
         if g.across and self._reachable(g, T, samples[0][1], v_end):
-            self._keep_across(g, samples[0][1], (samples[-1][0], v1))
+            self._keep_across(g, samples[0][1])
             return
         after = set_off(self.p, g, t1, v_end, a1)          # (a stand shown, a start seen after it)
         corrected, unseen_var = (after, 0.0) if after is not None else settled_travel(self.p, g, T, v_end, a1)
@@ -379,10 +379,10 @@ class GapBridge:
         p = self.p
         return could_go(d1 + self.offset_m - g.d0, g.v0, v1, T, p.max_accel_m_s2, p.across_speed_m_s)
 
-    def _keep_across(self, g: Gap, d1: float, settled_v=None):
+    def _keep_across(self, g: Gap, d1: float):
         """The step measured across the gap (to the odometer's d1) stands: as measured, with a
         keyframe step's scale error (the gap's close had started the next step at d1)."""
-        self._gap, self._settled_v = None, settled_v or self._settled_v
+        self._gap = None
         self.var_meas += self.p.step_floor_m ** 2 + (self.p.scale_sigma * (d1 - g.vis0)) ** 2
         self._carry(g.t0, g.t0, 0.0)
 

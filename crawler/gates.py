@@ -175,8 +175,9 @@ class FrameGates:
         periodic wall's alias across a reversal in a drop read the mean +0.05 m/s; held as the
         speed now, it refused the true -0.52 m/s after, and the tracks followed the alias: +17 %.)"""
         self._refused_since = None    # a believed frame ends any refusal
-        recent = 0.0 < t_s - self.t_ref <= self.p.across_s + 1e-6     # (frame times are sums of intervals)
-        if over_s > self.p.across_s + 1e-6:
+        across = self.p.across_s + 1e-6          # (frame times are sums of intervals)
+        recent = 0.0 < t_s - self.t_ref <= across
+        if over_s > across:
             self._dv = None           # ...and the change across it is no jitter
             return
         if self.v_ref is not None and recent:   # (a change from a speed before a gap is none either)
