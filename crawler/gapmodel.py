@@ -20,6 +20,8 @@ class BridgeParams:
     speed_sigma_m_s: float = 0.005    # 1-sigma error of a measured speed (0.25 s least squares)
     unknown_speed_m_s: float = 0.5    # 1-sigma speed of a crawler never measured yet (a run starting blind)
     max_accel_m_s2: float = 1.0       # the model never extrapolates a stronger acceleration
+    hard_accel_m_s2: float = 3.0      # ...but a crawler can brake or start this hard: what sigma must cover
+    hidden_stand_s: float = 0.3       # an operator's stop lasts this long at least (one a gap may hide)
     history_s: float = 0.3            # speed and acceleration before a gap: fitted over this much
     min_history_s: float = 0.1        # ...and a speed measured over less than this is no speed at all
     min_accel_m_s2: float = 0.15      # a fitted acceleration below this is noise: constant speed
@@ -45,6 +47,7 @@ class Gap:
     a0: float                         # acceleration then (0 if unknown)
     sa: float = 0.0                   # ...and its 1-sigma error
     up: float = 0.0                   # the rate of a crawler speeding up into it: not carried, it settles it
+    lag: float = 0.0                  # v0 read over a moment: how far it may be from the speed at t0
     stood_s: float = 0.0              # the stands the frames showed, closed (crawler/stands.py), with their edges
     stand: tuple | None = None        # an open one: (since, until)
     edges_var: float = 0.0            # the variance of the brakes and starts into and out of them
@@ -82,8 +85,7 @@ class Gap:
             self.d0, self.vis0 = self.d0 + gain_before_m, self.vis0 + gain_before_m
 
 
-_STAND_STATE = ("stand", "confirmed", "stood_s", "before_last", "last_end", "resumed", "edges_var", "edge_s",
-                "held_from")
+_STAND_STATE = ("stand", "confirmed", "stood_s", "before_last", "last_end", "resumed", "edges_var", "edge_s", "held_from")
 REJOIN_S = 0.5                         # a stand shown again this soon after a frame measured inside it is that one
 
 
@@ -287,31 +289,32 @@ def faded(p: BridgeParams, T: float) -> float:
     return min(T, m) + x - x * x / (2 * m)
 
 
-def stops(g: Gap, T: float) -> float | None:
-    """When the model had the crawler stop inside the gap (s after its start), else None."""
+def stops(g: Gap, T: float, v1: float = 0.0, hard: float = math.inf) -> float | None:
+    """When the model had the crawler stop inside the gap (s after its start), else None; None too
+    where no start from there at `hard` gets to the speed after, v1, by T (the brake was the shake's)."""
     if g.v0 is None or not g.a0 or g.v0 * g.a0 >= 0 or -g.v0 / g.a0 >= T:
         return None
-    return -g.v0 / g.a0
+    return -g.v0 / g.a0 if abs(v1) <= hard * (T + g.v0 / g.a0) else None
 
 
-def model_var(p: BridgeParams, T: float, v0: float | None, settled: bool = False, sa: float = 0.0) -> float:
+def model_var(p: BridgeParams, T: float, v0: float | None, settled: bool = False, sa=0.0, lag=0.0) -> float:
     """Variance of a gap of T carried by the model. The speed wanders like a random walk the
     camera did not see (variance speed_diffusion * t): its integral over the gap has variance
     q T^3 / 3 with only the speed before known, q T^3 / 12 once the speed after settles it (a
-    Brownian bridge). Add the measured speeds' own errors, or, for a run that starts blind,
-    no speed at all."""
+    Brownian bridge). Add the measured speeds' own errors (and a speed before read over a moment's
+    `lag`), or, for a run that starts blind, no speed at all."""
     q, sv = p.speed_diffusion, p.speed_sigma_m_s
     if v0 is None:
         sv = p.unknown_speed_m_s
     if settled:
-        return 0.5 * (sv * T) ** 2 + q * T ** 3 / 12.0
-    return (sv * T) ** 2 + q * T ** 3 / 3.0 + stand_var(p, T, v0) + (0.5 * sa * T * T) ** 2
+        return 0.5 * (sv * T) ** 2 + (0.5 * lag * T) ** 2 + q * T ** 3 / 12.0
+    return (sv * T) ** 2 + (lag * T) ** 2 + q * T ** 3 / 3.0 + stand_var(p, T, v0) + (0.5 * sa * T * T) ** 2
 
 
 def stand_var(p: BridgeParams, T: float, v0: float | None) -> float:
     """Blind longer than it takes to brake, the crawler may stand (an operator stops to look):
-    even odds of that, anywhere from braking at its best to driving on (range^2 / 6)."""
-    a = p.max_accel_m_s2
+    even odds of that, anywhere from braking its hardest to driving on (range^2 / 6)."""
+    a = p.hard_accel_m_s2
     if v0 is None or T <= abs(v0) / a:
         return 0.0
     return (abs(v0) * T - v0 * v0 / (2 * a)) ** 2 / 6.0
@@ -319,9 +322,9 @@ def stand_var(p: BridgeParams, T: float, v0: float | None) -> float:
 
 def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0) -> tuple[float, float]:
     """The gap's distance once the speed after it is known, and the variance the video cannot show."""
-    if g.v0 is None:                      # a run that started blind: the speed after, constant
-        return v1 * T, 0.0
-    stop = stops(g, T)
+    if g.v0 is None:      # a run that started blind: the speed after, constant (even odds it set off in it)
+        return v1 * T, max(0.0, abs(v1) * T - v1 * v1 / (2 * p.hard_accel_m_s2)) ** 2 / 6.0
+    stop = stops(g, T, v1, p.hard_accel_m_s2)
     if stop is not None:
         return _settled_after_stop(p, g, T, v1, a1, stop)
     # a constant acceleration over the gap; but a ramp seen at one end goes on at its rate to the
@@ -348,13 +351,15 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
         guess = math.copysign(abs(g.v0) * T + gain * (T - 0.5 * gain / g.up), v1)
     elif ramped and a1 and dv * a1 > 0 and abs(dv) < abs(a1) * T:   # cruising, then the ramp seen after it
         guess = g.v0 * T + 0.5 * dv * abs(dv / a1)
-    # ...but the speed changed at a moment the video does not show: anywhere from at once to at
-    # the last (uniform: range^2 / 12); or, in a gap long enough to brake to a stop and start again,
-    # a stand the video does not show either (an operator stops to look): anything down to braking
-    # and starting at the crawler's best. Even odds of driving through and of a stand of any length
-    a, v0 = p.max_accel_m_s2, g.v0
+    # ...but the speed changed at a moment the video does not show: at once to at the last, as hard
+    # as a crawler can (uniform: range^2 / 12; at the model's bound, 1.5-3 m/s^2 brakes in drops read
+    # 2-7 sigma off); or, in a gap long enough to brake to a stop, stand a moment and start again, a
+    # stand it does not show either (an operator stops to look): down to braking and starting as
+    # hard as a crawler can. Even odds of driving through and of a stand of any length
+    a, v0 = p.hard_accel_m_s2, g.v0
     when = max(0.0, abs(dv) * T - abs(v0 * v0 - v1 * v1) / a) ** 2 / 12.0
-    if v0 * v1 >= 0 and T > (abs(v0) + abs(v1)) / a:
+    span = abs(v0) + abs(v1)          # (never less than a stand between brakes at the model's bound)
+    if v0 * v1 >= 0 and T > min(span / a + p.hidden_stand_s, span / p.max_accel_m_s2):
         least = math.copysign((v0 * v0 + v1 * v1) / (2 * a), v0 + v1)
         return guess, max(when, (guess - least) ** 2 / 6.0)
     return guess, when

@@ -48,6 +48,8 @@ class Bridged:
     bridged: bool                     # carried by the motion model, not measured
     step_sigma_m: float               # this frame's own noise, that does not carry on (for the wheel fusion)
     gap_s: float = 0.0                # how long the current (or just closed) gap is
+    across: bool = False              # its step was measured across unseen time, unchecked yet (a wheel's is surer)
+    corrected_m: float = 0.0          # of distance_m, what a gap's settling moved the past by (no motion now)
 
 
 class GapBridge:
@@ -65,7 +67,7 @@ class GapBridge:
         self._restarted = None        # (t, vision distance) of a fresh start inside the open gap: what
                                       # the odometer calls continuous after it is continuous with it only
         self._gap_prev_var = 0.0
-        self._out_m = distance_m
+        self._out_m, self.corrected_m = distance_m, 0.0
         self.noise = FrameNoise(self.p)   # the measured frame's own noise, not carried on (framenoise.py)
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
         self._remeasured_at = None    # when the odometer last measured its steps at a new tilt
@@ -104,6 +106,7 @@ class GapBridge:
     def update(self, est) -> Bridged:
         """One odometer estimate: t_s, distance_m, speed_m_s, tracking, keyframe, continuous,
         spread_mm, inliers."""
+        self.corrected_m = 0.0
         return self._tracked(est) if est.tracking else self._blind(est)
 
     # -- the motion model ------------------------------------------------------------------------------
@@ -148,7 +151,7 @@ class GapBridge:
     def _model_var(self, g: Gap, t: float) -> tuple[float, float]:
         """The model's time from the gap's start to t, and the variance of what it carried by then."""
         T, stands_var = model_time(g, t)
-        return T, model_var(self.p, T, moving_speed(g), sa=g.sa) + stands_var + self._either_var(g, T)
+        return T, model_var(self.p, T, moving_speed(g), sa=g.sa, lag=g.lag) + stands_var + self._either_var(g, T)
 
     def _watch_still(self, t: float, out: float):
         """The published distance standing (within what a standing speed moves in min_stand_s): the
@@ -260,7 +263,8 @@ class GapBridge:
         if self._settling is not None:    # the gap is not settled yet: its model uncertainty stands
             total += self._model_var(self._gap, self._settling[0])[1]
         self._watch_still(est.t_s, self._out_m)
-        return Bridged(self._out_m, math.sqrt(total), False, self.noise.white(est), gap_T)
+        return Bridged(self._out_m, math.sqrt(total), False, self.noise.white(est), gap_T,
+                       gap_T > 0 and self._settling is not None and self._gap.across, self.corrected_m)
 
     def _track_cruise(self, est):
         """The drive's cruise: the odometer's speed, held within 5 % (or 1 cm/s) for history_s. A
@@ -358,16 +362,15 @@ class GapBridge:
         # what the offset carries (measured across, the odometer's distance holds its own step, which
         # a re-measure scales itself: +31 mm leaked with an alias refused, a review's case)
         self._carry(g.t0, t1, corrected - (samples[0][1] - g.vis0 if g.across else 0.0))
-        self.offset_m += correction
-        self._out_m += correction
+        self.offset_m, self._out_m, self.corrected_m = (x + correction for x in (self.offset_m, self._out_m, self.corrected_m))
         # the samples the speed after was read from are the history now, also those a reopened gap
         # had dropped from it: a gap that opens at once is carried at that speed, not held
         self._hist = deque([(t, d) for t, d in self._hist if t < t1]
                            + [(t, d + self.offset_m) for t, d in samples])
         # both ends known: the trapezoid's residual; only the speed after, or a stop the model
         # guessed inside the gap: as unsure as while blind
-        both = g.v0 is not None and not stopped
-        self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, settled=both) + unseen_var + stands_var
+        both = g.v0 is not None and stops(g, T, v_end, self.p.hard_accel_m_s2) is None
+        self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, both, lag=g.lag) + unseen_var + stands_var
         self._gap = None
 
     def _reachable(self, g: Gap, T: float, d1: float, v1: float) -> bool:

@@ -110,7 +110,8 @@ def is_rescale(gain_m: float, over_m: float) -> bool:
 
 
 def motion_before(p, hist, t0: float, settled_v=None, remeasured_at=None):
-    """(speed, acceleration, its 1-sigma error[, the rate of a crawler speeding up]) at t0 from the
+    """(speed, acceleration, its 1-sigma error[, the rate of a crawler speeding up[, how far the speed
+    may be from the speed at t0]]) at t0 from the
     measured (t, distance) samples hist (speed None: never measured). p: the bridge's parameters
     (gapmodel.BridgeParams); settled_v: (t, speed) of the last gap settled; remeasured_at: when the
     odometer last measured its steps again at a new tilt."""
@@ -128,7 +129,9 @@ def motion_before(p, hist, t0: float, settled_v=None, remeasured_at=None):
         return None, 0.0, 0.0
     ts, ds = [t - t0 for t, _ in h], [d for _, d in h]
     if len(h) < 5 or ts[-1] - ts[0] < 0.5 * p.history_s:
-        return slope(ts, ds), 0.0, 0.0
+        # read over a moment: its mean is the speed at its middle, which at t0 may have changed by
+        # what a hard start or brake makes of half that (a start at 2.5 m/s^2: 0.17 m/s for 0.33)
+        return slope(ts, ds), 0.0, 0.0, 0.0, p.hard_accel_m_s2 * (ts[-1] - ts[0]) / 2
     # back in time from t0: a ramp that began inside the window, after a cruise (a quadratic
     # over the window blurs a late brake). Only a brake is carried into the gap (it ends in a
     # stop); a crawler speeding up goes on at the speed seen, which the speed after settles.
