@@ -236,3 +236,33 @@ def test_a_non_finite_vision_distance_is_a_lost_frame():
     f = fusion.update(VisionFix(1.0 + 1 / FPS, float("nan"), None, True), reading(enc, 1.0 + 1 / FPS + LATENCY))
     assert f.source == "wheel" and math.isfinite(f.distance_m)
     assert f.distance_m == pytest.approx(motion.distance(1.0 + 1 / FPS), abs=5e-4)
+
+
+def _across_drop(alias_m, wheel=True):
+    """0.3 m/s; frames 45-59 dropped; the frame after them measured across, alias_m off (a periodic
+    wall's other period), which the bridge refuses once the speed after is known. Yields (truth, fused)."""
+    from crawler.distance import DistanceChain
+    from crawler.estimate import Estimate
+    from crawler.gaps import GapBridge
+
+    chain = DistanceChain(GapBridge(), WheelFusion())
+    for i in range(240):
+        t, v = i / FPS, 0.3 * i / FPS + (alias_m if i >= 60 else 0.0)
+        if 45 <= i < 60:
+            continue
+        est = Estimate(i, t, v, None, 0.0, None, True, 1.0, 40, 40, 0.02, i % 3 == 0, texture_dn=10.0)
+        yield 0.3 * t, chain.update(est, WheelReading(t, 0.3 * t, None, "boot-1") if wheel else None), chain
+
+
+def test_a_step_measured_across_dropped_frames_is_the_wheel_s_and_its_refusal_no_slip():
+    """A review's finding: the fusion took vision's step across a drop as measured, so an alias
+    (+0.10 m) was published until the bridge refused it, and its refusal read as a wheel slip.
+    The wheel carries the drop now, and the bridge's correction of its past is no motion."""
+    errors, slipped = [], False
+    for truth, out, chain in _across_drop(0.10):
+        errors.append(abs(out.distance_m - truth))
+        slipped |= bool(out.slip)
+    assert max(errors) < 2e-3 and not slipped and chain.fusion.slip_count == 0
+    assert chain.bridge.sigma_m < 0.1                       # the bridge refused it (its model settled)
+    last = [abs(out.distance_m - truth) for truth, out, _ in _across_drop(0.10, wheel=False)][-1]
+    assert last < 2e-3                                      # no wheel: the bridge's correction is taken

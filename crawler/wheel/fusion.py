@@ -48,7 +48,9 @@ class VisionFix(NamedTuple):
 
     sigma_m: noise of this frame's vision distance that does not carry to the next frames (for a
     bridged frame: what the motion model adds this frame). bridged: vision carried the distance
-    with a motion model because nothing could be measured.
+    with a motion model because nothing could be measured. corrected_m: of distance_m, what a
+    gap's settling moved the past by (crawler/gaps.py): no motion of this frame, and no part of the
+    fused distance where the wheel carried that gap.
     """
 
     t_s: float
@@ -56,6 +58,7 @@ class VisionFix(NamedTuple):
     sigma_m: float | None = None
     tracking: bool = True
     bridged: bool = False
+    corrected_m: float = 0.0
 
 
 class SlipEvent(NamedTuple):
@@ -127,6 +130,7 @@ class WheelFusion:
         self._early = False                  # this frame came before every wheel reading
         self._w_prev_early = False
         self._source_prev = None
+        self._wheel_carried = False          # the last unmeasured frames: the wheel carried them
 
     # -- public -------------------------------------------------------------------------------------
 
@@ -146,6 +150,7 @@ class WheelFusion:
             self._offset = self.d - v
         d_before = self.d
         self._held = False
+        self._take_correction(getattr(vision, "corrected_m", 0.0))
         if tracking and self._tracking_prev and self._v_prev is not None:
             source, event = self._measured(t, v, sv, w, dw)
         else:
@@ -218,6 +223,19 @@ class WheelFusion:
         notes, self._notes = self._notes, []
         return notes
 
+    def _take_correction(self, corrected: float):
+        """The bridge settled a gap and moved its past by `corrected`: never a step of this frame
+        (taken as one, a refused alias step read as a slip of the wheel); where the wheel carried
+        that gap the fused distance never had the bridge's guess, so it stays."""
+        if not corrected or self._v_prev is None:
+            return
+        self._v_prev += corrected
+        self.slip.shift(corrected)
+        if self._wheel_carried:
+            self._offset -= corrected
+        else:
+            self.d += corrected
+
     # -- the two kinds of frame ---------------------------------------------------------------------
 
     def _measured(self, t, v, sv, w, dw):
@@ -258,6 +276,7 @@ class WheelFusion:
         if newest is not None:
             self.scale.close(newest[1], newest[2], 2 * self._sv2_prev)
         self.slip.clear()
+        self._wheel_carried = dw is not None
         if dw is not None:
             k = self.scale.k
             if self._resuming:

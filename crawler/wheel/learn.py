@@ -40,6 +40,10 @@ class SlipDetector:
         self.state = 0
         self.ahead = 0.0
 
+    def shift(self, dv: float):
+        """Vision's count moved its past by dv (a gap settled): the window's samples move with it."""
+        self._s = deque((t, v + dv, w) for t, v, w in self._s)
+
     @property
     def oldest(self):
         return self._s[0] if self._s else None
