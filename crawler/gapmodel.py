@@ -330,12 +330,12 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     # a constant acceleration over the gap; but a ramp seen at one end goes on at its rate to the
     # other end's speed, when the change is more than the speeds' own errors could make
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0
-    ramped = abs(dv) >= p.ramp_dv_m_s
-    # a stand the frames showed, or a set-off as the gap opened (gaps.py) that the speed after bears out
+    ramped = abs(dv) >= p.ramp_dv_m_s    # a stand the frames showed, or a set-off as the gap opened (gaps.py)
     off = (g.resumed is not None and not start_rate_seen(p, g)      # (a start's rate seen: read at it below)
-           and v1 * g.resumed[1] > 0 and abs(v1) - abs(g.v0) >= p.ramp_dv_m_s
-           and not a1 * v1 > 0)       # a crawler seen still speeding up after it: its ramp times the start
-    shown = (g.stood_s > 0 or g.stand is not None or off) and not braking(g)
+           and v1 * g.resumed[1] > 0 and abs(v1) - abs(g.v0) >= p.ramp_dv_m_s    # that the speed after bears out
+           and not a1 * v1 > 0        # a crawler seen still speeding up after it: its ramp times the start
+           and T >= g.resumed[0])     # ...and one at its cruise before the model's start is half done set off
+    shown = (g.stood_s > 0 or g.stand is not None or off) and not braking(g)   # quicker: any time, at any rate
     dv_run = v1 - moving_speed(g)
     if shown and g.open_at_close and standing(p, v1):
         # still standing when the wall was measured again: it never set off (measuring again ended

@@ -745,6 +745,20 @@ def test_a_speed_read_over_a_moment_before_a_gap_is_as_unsure_as_a_hard_start_ma
     assert abs(err) < 2 * s[-1]
 
 
+def test_a_set_off_seen_done_before_the_model_s_start_was_half_over_is_no_step_at_its_middle():
+    """A gap opened as the crawler set off (gaps.py _setting_off): the model carries the speed
+    before until half its start at the drive's middle rate (1.06 s to 0.87 m/s), then the cruise.
+    Seen cruising at 0.89 m/s after 1.0 s, it set off quicker (at 1.4 m/s^2): the model's carry so far
+    (22 mm) settled a gap of 581 mm (-15.2 %). Any time, any rate: the trapezoid, as for no set-off."""
+    p = BridgeParams()
+    g = Gap(0.0, 0.0, 0.022, 0.0, cruise=0.871, resumed=(1.061, 0.871, math.inf))
+    d, var = settled_travel(p, g, 1.0, 0.89)
+    assert d == pytest.approx(0.5 * (0.022 + 0.89))
+    assert abs(0.581 - d) < 2 * math.sqrt(var)
+    late = Gap(0.0, 0.0, 0.022, 0.0, cruise=0.871, resumed=(1.061, 0.871, math.inf))
+    assert settled_travel(p, late, 1.5, 0.89)[0] == pytest.approx(0.022 * 1.061 + 0.871 * (1.5 - 1.061), abs=1e-3)
+
+
 def test_a_braking_gap_s_carry_ends_at_a_second_stand_fades_and_is_not_set_by_a_stand_before_its_stop():
     """A review's cases: a second stand shown ended the carry (it drove on at 0.2 m/s through it);
     blind for a minute it fades as any carry does (it grew linearly); a stand shown ending before
