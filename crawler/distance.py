@@ -38,10 +38,10 @@ class DistanceChain:
         if self.fusion is None:
             return out
         # the fusion weighs each frame's own noise; what carries on (closed keyframe steps) is the bridge's
-        # (a step measured across dropped frames is the wheel's to carry: an alias of it, refused once the
-        # speed after is known, had read as a slip)
-        fused = self.fusion.update(VisionFix(est.t_s, b.distance_m, b.step_sigma_m, est.tracking and not b.across,
-                                             b.bridged, b.corrected_m), wheel_reading)
+        # (a step across a gap, not checked yet, is the wheel's to carry: an alias across dropped frames,
+        # refused once the speed after is known, had read as a slip)
+        fused = self.fusion.update(VisionFix(est.t_s, b.distance_m, b.step_sigma_m, est.tracking, b.bridged,
+                                             b.corrected_m, b.across), wheel_reading)
         if fused.event is not None:
             self.last_event = fused.event
         speed = est.speed_m_s

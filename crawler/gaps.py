@@ -48,7 +48,7 @@ class Bridged:
     bridged: bool                     # carried by the motion model, not measured
     step_sigma_m: float               # this frame's own noise, that does not carry on (for the wheel fusion)
     gap_s: float = 0.0                # how long the current (or just closed) gap is
-    across: bool = False              # its step was measured across unseen time, unchecked yet (a wheel's is surer)
+    across: bool = False              # its step spans a gap, not checked yet (a wheel's is surer)
     corrected_m: float = 0.0          # of distance_m, what a gap's settling moved the past by (no motion now)
 
 
@@ -216,7 +216,7 @@ class GapBridge:
         self._blind_at = (est.t_s, out)
         self._watch_still(est.t_s, out)
         return Bridged(out, math.sqrt(self.var_meas + self.var_gaps + var + self.noise.pose_var), True, step,
-                       est.t_s - g.t0)
+                       est.t_s - g.t0, corrected_m=self.corrected_m)
 
     # -- measured -------------------------------------------------------------------------------------
 
@@ -264,7 +264,7 @@ class GapBridge:
             total += self._model_var(self._gap, self._settling[0])[1]
         self._watch_still(est.t_s, self._out_m)
         return Bridged(self._out_m, math.sqrt(total), False, self.noise.white(est), gap_T,
-                       gap_T > 0 and self._settling is not None and self._gap.across, self.corrected_m)
+                       gap_T > 0 and self._settling is not None, self.corrected_m)
 
     def _track_cruise(self, est):
         """The drive's cruise: the odometer's speed, held within 5 % (or 1 cm/s) for history_s. A
@@ -328,7 +328,7 @@ class GapBridge:
         enough = span >= self.p.min_history_s - TIME_EPS
         v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if enough else None
         (T, stands_var), v_end, a1 = model_time(g, t1), v1, 0.0
-        stopped = stops(g, T) is not None
+        stopped = v1 is not None and stops(g, T, v1, self.p.hard_accel_m_s2) is not None
         if v1 is not None and len(samples) >= 5 and span >= 0.5 * self.p.history_s:
             # speeding up or slowing down since it was seen again: the speed at the gap's end, and
             # the rate (a crawler still speeding up started not long before). After a stop inside

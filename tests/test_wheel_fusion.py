@@ -7,6 +7,7 @@ The target run (issue 12): 0.2 m/s for 15 s at 30 fps, vision blind 1.0-1.3 s, t
 import json
 import math
 
+import numpy as np
 import pytest
 
 from crawler.wheel import FusionParams, VisionFix, WheelFusion, WheelReading
@@ -238,9 +239,10 @@ def test_a_non_finite_vision_distance_is_a_lost_frame():
     assert f.distance_m == pytest.approx(motion.distance(1.0 + 1 / FPS), abs=5e-4)
 
 
-def _across_drop(alias_m, wheel=True):
+def _across_drop(alias_m, wheel=True, no_reading=()):
     """0.3 m/s; frames 45-59 dropped; the frame after them measured across, alias_m off (a periodic
-    wall's other period), which the bridge refuses once the speed after is known. Yields (truth, fused)."""
+    wall's other period), which the bridge refuses once the speed after is known. Frames in
+    no_reading have no wheel reading. Yields (truth, fused, chain)."""
     from crawler.distance import DistanceChain
     from crawler.estimate import Estimate
     from crawler.gaps import GapBridge
@@ -251,7 +253,8 @@ def _across_drop(alias_m, wheel=True):
         if 45 <= i < 60:
             continue
         est = Estimate(i, t, v, None, 0.0, None, True, 1.0, 40, 40, 0.02, i % 3 == 0, texture_dn=10.0)
-        yield 0.3 * t, chain.update(est, WheelReading(t, 0.3 * t, None, "boot-1") if wheel else None), chain
+        reading = WheelReading(t, 0.3 * t, None, "boot-1") if wheel and i not in no_reading else None
+        yield 0.3 * t, chain.update(est, reading), chain
 
 
 def test_a_step_measured_across_dropped_frames_is_the_wheel_s_and_its_refusal_no_slip():
@@ -266,3 +269,43 @@ def test_a_step_measured_across_dropped_frames_is_the_wheel_s_and_its_refusal_no
     assert chain.bridge.sigma_m < 0.1                       # the bridge refused it (its model settled)
     last = [abs(out.distance_m - truth) for truth, out, _ in _across_drop(0.10, wheel=False)][-1]
     assert last < 2e-3                                      # no wheel: the bridge's correction is taken
+
+
+def test_a_step_across_a_drop_with_no_wheel_reading_on_its_frame_is_counted_once():
+    """A review's case: the step across was left to the wheel, none came on that frame, and the wheel
+    kept its old anchor, so the next frame's wheel step covered the drop again (+160 mm)."""
+    last = [abs(out.distance_m - truth) for truth, out, _ in _across_drop(0.0, no_reading={60})][-1]
+    assert last < 2e-3
+
+
+def test_a_settled_gap_s_correction_stays_out_of_the_wheel_scale_and_the_wheel_carried_gaps():
+    """A review's case: a crawler changing speed (0.3 / 0.15 m/s at 1 m/s^2) inside a 0.6 s blind
+    stretch every 1.6 s, the wheel true (scale 1). The bridge's corrections at its settles had gone
+    into the wheel scale's stretches as travel (k ran to 0.69, the fused distance 0.72 m short over
+    8.4 m); and one frame without a wheel reading in a gap had let the correction in."""
+    from crawler.distance import DistanceChain
+    from crawler.estimate import Estimate
+    from crawler.gaps import GapBridge
+
+    ts = np.arange(0, 30, 1 / FPS)
+    starts = [2.0 + 1.6 * k for k in range(17)]
+    v, speeds = 0.3, []
+    for t in ts:
+        target = 0.3 if sum(t >= s + 0.05 for s in starts) % 2 == 0 else 0.15
+        v += float(np.clip(target - v, -1 / FPS, 1 / FPS))
+        speeds.append(v)
+    dist = np.concatenate([[0.0], np.cumsum(speeds[:-1]) / FPS])
+    blind = {i for s in starts for i in range(round(s * FPS) + 1, round((s + 0.6) * FPS))}
+    chain, vision, was_blind = DistanceChain(GapBridge(), WheelFusion()), 0.0, False
+    for i, t in enumerate(ts):
+        if i in blind:
+            est, was_blind = Estimate(i, t, vision, None, 0.0, None, False, 0.0, 0, 0, None, False), True
+        else:
+            vision += 0.0 if was_blind or i == 0 else dist[i] - dist[i - 1]
+            est = Estimate(i, t, vision, None, 0.0, None, True, 1.0, 40, 40, 0.02, was_blind or i % 3 == 0,
+                           continuous=not was_blind, texture_dn=10.0)
+            was_blind = False
+        missing = i in blind and (i + 1) not in blind             # no reading on each gap's last blind frame
+        out = chain.update(est, None if missing else WheelReading(t, float(dist[i]), None, "boot-1"))
+    assert chain.fusion.scale.k == pytest.approx(1.0, abs=0.01)
+    assert abs(out.distance_m - dist[-1]) < 0.02

@@ -50,7 +50,8 @@ class VisionFix(NamedTuple):
     bridged frame: what the motion model adds this frame). bridged: vision carried the distance
     with a motion model because nothing could be measured. corrected_m: of distance_m, what a
     gap's settling moved the past by (crawler/gaps.py): no motion of this frame, and no part of the
-    fused distance where the wheel carried that gap.
+    fused distance where the wheel carried that gap. across: its step spans a gap and is not
+    checked yet (a step across dropped frames, a fresh start's guess): the wheel's to carry.
     """
 
     t_s: float
@@ -59,6 +60,7 @@ class VisionFix(NamedTuple):
     tracking: bool = True
     bridged: bool = False
     corrected_m: float = 0.0
+    across: bool = False
 
 
 class SlipEvent(NamedTuple):
@@ -130,7 +132,8 @@ class WheelFusion:
         self._early = False                  # this frame came before every wheel reading
         self._w_prev_early = False
         self._source_prev = None
-        self._wheel_carried = False          # the last unmeasured frames: the wheel carried them
+        self._wheel_carried = False          # the wheel carried a frame of the last unmeasured stretch
+        self._in_gap = False                 # ...which goes on
 
     # -- public -------------------------------------------------------------------------------------
 
@@ -151,10 +154,14 @@ class WheelFusion:
         d_before = self.d
         self._held = False
         self._take_correction(getattr(vision, "corrected_m", 0.0))
-        if tracking and self._tracking_prev and self._v_prev is not None:
+        across = bool(getattr(vision, "across", False))
+        if tracking and not across and self._tracking_prev and self._v_prev is not None:
             source, event = self._measured(t, v, sv, w, dw)
+            self._in_gap = False
         else:
-            source, event = self._unmeasured(t, v, sv, dw, tracking, bridged)
+            if not self._in_gap:             # a new unmeasured stretch: who carries it starts afresh
+                self._wheel_carried, self._in_gap = False, True
+            source, event = self._unmeasured(t, v, sv, dw, tracking, bridged or across)
         self._source_prev = source
         if w is not None:
             self._w_prev, self._w_prev_early = w, self._early
@@ -226,11 +233,13 @@ class WheelFusion:
     def _take_correction(self, corrected: float):
         """The bridge settled a gap and moved its past by `corrected`: never a step of this frame
         (taken as one, a refused alias step read as a slip of the wheel); where the wheel carried
-        that gap the fused distance never had the bridge's guess, so it stays."""
+        any of that gap the fused distance never had the bridge's guess, so it stays. (A gap the
+        model carried before the wheel's readings came back takes all of it: not split by time.)"""
         if not corrected or self._v_prev is None:
             return
         self._v_prev += corrected
         self.slip.shift(corrected)
+        self.scale.shift(corrected)          # (a stretch that took it in read 0.19 m for 0.25: its k ran to 0.69)
         if self._wheel_carried:
             self._offset -= corrected
         else:
@@ -276,7 +285,7 @@ class WheelFusion:
         if newest is not None:
             self.scale.close(newest[1], newest[2], 2 * self._sv2_prev)
         self.slip.clear()
-        self._wheel_carried = dw is not None
+        self._wheel_carried |= dw is not None
         if dw is not None:
             k = self.scale.k
             if self._resuming:

@@ -157,6 +157,11 @@ class ScaleLearner:
     def drop(self):
         self._anchor = None
 
+    def shift(self, dv: float):
+        """Vision's count moved its past by dv (a gap settled): the stretch's start moves with it."""
+        if self._anchor is not None:
+            self._anchor = (self._anchor[0] + dv, self._anchor[1])
+
     def _measure(self, v, w, var_v) -> bool:
         y, h = v - self._anchor[0], w - self._anchor[1]
         self.last_pair = (y, h)
