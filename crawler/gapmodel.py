@@ -357,7 +357,7 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     # stand it does not show either (an operator stops to look): down to braking and starting as
     # hard as a crawler can. Even odds of driving through and of a stand of any length
     a, v0 = p.hard_accel_m_s2, g.v0
-    when = max(0.0, abs(dv) * T - abs(v0 * v0 - v1 * v1) / a) ** 2 / 12.0
+    when = max(0.0, abs(dv) * (T - abs(dv) / a)) ** 2 / 12.0      # (the change takes |dv| / a of T)
     span = abs(v0) + abs(v1)          # (never less than a stand between brakes at the model's bound)
     if v0 * v1 >= 0 and T > min(span / a + p.hidden_stand_s, span / p.max_accel_m_s2):
         least = math.copysign((v0 * v0 + v1 * v1) / (2 * a), v0 + v1)

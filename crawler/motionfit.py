@@ -131,7 +131,8 @@ def motion_before(p, hist, t0: float, settled_v=None, remeasured_at=None):
     if len(h) < 5 or ts[-1] - ts[0] < 0.5 * p.history_s:
         # read over a moment: its mean is the speed at its middle, which at t0 may have changed by
         # what a hard start or brake makes of half that (a start at 2.5 m/s^2: 0.17 m/s for 0.33)
-        return slope(ts, ds), 0.0, 0.0, 0.0, p.hard_accel_m_s2 * (ts[-1] - ts[0]) / 2
+        span = ts[-1] - ts[0]     # (only a moment: over 0.15 s at a low frame rate, its slope as before)
+        return slope(ts, ds), 0.0, 0.0, 0.0, p.hard_accel_m_s2 * span / 2 if span < 0.5 * p.history_s else 0.0
     # back in time from t0: a ramp that began inside the window, after a cruise (a quadratic
     # over the window blurs a late brake). Only a brake is carried into the gap (it ends in a
     # stop); a crawler speeding up goes on at the speed seen, which the speed after settles.
