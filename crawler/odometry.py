@@ -101,7 +101,7 @@ class Odometer:
         roi = frame[y:y + h, x:x + w]
         try:
             self._energy = energy = flow.texture_energy(roi)
-            self._copy = self._gates.copied(roi, self._unmeasured_since is not None)
+            self._copy = self._gates.copied(roi, self._unmeasured_since is not None, energy)
             if not self._gates.textured(energy) or self._gates.dark(roi):   # (a blackout's noise is texture)
                 return self._untextured(roi, t_s, energy)
             self._dense.reset()

@@ -235,15 +235,18 @@ def test_a_frame_smoother_than_sensor_noise_is_not_measured_at_all(texture):
     assert not any(e.tracking for e in ests)
 
 
-def test_after_a_gap_frames_the_encoder_copied_are_no_stand_but_a_camera_s_own_are(texture):
-    # 8 px a frame, then 20 black frames; after them the image stands still. As copies of one
+def test_after_a_gap_copies_of_a_faint_frame_are_no_stand_but_of_texture_or_a_camera_s_own_are(texture):
+    # 8 px a frame, then 20 black frames; after them the image stands still. As copies of one faint
     # frame (a smooth wall under a fixed highlight, which the encoder copies while the wall moves)
-    # they are no news of the motion, and the gap stays open; as a camera's own frames (each with
-    # its sensor noise) they are a stand, measured
+    # they are no news of the motion, and the gap stays open. A wall with texture is copied only if
+    # it stood (copies of moving walls measured at most 1.1 DN over the stress runs): its copies are a
+    # stand, as are a camera's own frames (each with its sensor noise). Taken for no news, a
+    # crawler standing in the light after a blackout at CRF 32 was carried on at 0.6 m/s (+47.9 %)
     rng = np.random.default_rng(3)
-    still = view(texture, 5000.0)
-    for noise in (0.0, 1.5):
-        odo, _ = run(texture, np.arange(20) * 8.0)
+    faint = np.clip(128 + 0.1 * (texture.astype(np.float32) - 128), 0, 255).astype(np.uint8)   # ~1.2 DN
+    for wall, noise, stands in ((faint, 0.0, False), (texture, 0.0, True), (texture, 1.5, True)):
+        still = view(wall, 5000.0)
+        odo, _ = run(wall, np.arange(20) * 8.0)
         black = np.zeros((480, 640), np.uint8)
         for i in range(20, 40):
             odo.update(black, i / 30)
@@ -252,7 +255,7 @@ def test_after_a_gap_frames_the_encoder_copied_are_no_stand_but_a_camera_s_own_a
             img = np.clip(still + rng.normal(0, noise, still.shape), 0, 255).astype(np.uint8) if noise else still
             ests.append(odo.update(img, i / 30))
         measured = [e for e in ests if e.tracking]
-        if noise:
+        if stands:
             assert len(measured) > 10 and max(abs(e.distance_m - measured[0].distance_m) for e in measured) < 1e-5
         else:
             assert not measured
