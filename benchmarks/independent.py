@@ -305,4 +305,110 @@ FOURTH = {  # session 13, a fourth reviewer: periodic walls and motion changes i
     "r5-rev-hard2-drop0.35-rib61-20deg-0.35": ({'tilt_deg': 20, 'profile': 'reverse', 'speed_m_s': 0.35, 'accel_m_s2': 2.0, 'duration_s': 7, 'texture': 'masonry', 'brick_mm': (55.0, 60.0), 'mortar_mm': 6.0, 'crf': 33, 'dropped_bursts': ((2.625, 2.975),), 'seed': 7027}, []),
 }
 
-INDEPENDENT = {**FIRST, **SECOND, **THIRD, **FOURTH}
+BIGSHAKE = dict(bounce_mm=1.5, pitch_jitter_deg=0.4, roll_deg=3.0, sway_mm=2.0)
+DARK = dict(exposure_ms=2.0)        # a short exposure, as with the LEDs strobed
+
+
+def _mas(length_mm, height_mm=65.0, mortar_mm=10.0):
+    return dict(texture="masonry", brick_mm=(length_mm, height_mm), mortar_mm=mortar_mm)
+
+
+_sg = sg
+
+
+FIFTH = {  # session 14, a fifth reviewer: brakes and set-offs of 0.3-3 m/s^2 at the edges of blind
+    # stretches, inspection stands while blind, creeping, chains of short gaps, a sediment hump (seeds
+    # 8031-8046; the fields as the reviewer wrote them)
+    # --- brakes and set-offs at the edges of blind stretches ---
+    # 3 m/s^2: brakes 1.8-2.0 s as the LEDs go out (dark 1.8-2.5), sets off at 6.0 s 0.1 s before they
+    # come back (dark 5.6-6.1), brakes 7.8-8.0 s inside dark 7.75-8.3; 100 mm blocks
+    "r6-brake3-into-dark-setoff3-in-dark-mas100-10deg-0.6": (dict(
+        tilt_deg=10, **_sg(0.6, 3.0, 3.0, 1.0), duration_s=9, seed=8031, crf=32,
+        led_blackouts=((1.8, 2.5), (5.6, 6.1), (7.75, 8.3)), **DARK, **LIT, **_mas(100.0)), []),
+    # 0.3 m/s^2: brakes 2.17-3.0 s onto a wet stretch (blind from y 0.395, t ~2.0 s), stands 2.5 s on
+    # it, sets off 5.5-6.33 s still blind (until y 0.685, t ~6.6 s)
+    "r6-brake0.3-stand2.5-setoff0.3-in-wet-grass-25deg-0.25": (dict(
+        tilt_deg=25, **_sg(0.25, 0.3, 5.5, 2.5), duration_s=11, seed=8032, crf=30,
+        wet_patches=((0.42, 0.90),), wet_highlight=1.4, **LIT, **GRASS), []),
+    # 0.5 m/s^2 brake from 0.8 m/s (1.9-3.5 s): 30 frames lost in its middle (2.3-3.3 s); the set-off at
+    # 5.0 s starts 0.05 s into a 0.65 s burst; concrete
+    "r6-brake0.5-in-drop-setoff-at-drop-start-concrete-35deg-0.8": (dict(
+        tilt_deg=35, **_sg(0.8, 0.5, 5.0, 1.5), duration_s=9, seed=8033, crf=30,
+        dropped_bursts=((2.3, 3.3), (4.95, 5.6))), []),
+    # reversal (2 m/s^2, 3.75-4.25 s) at y 1.875 inside a wet stretch (blind for y > 1.714: ~3.4-4.6 s)
+    "r6-reverse2-in-wet-brick-shake-15deg-0.5": (dict(
+        tilt_deg=15, profile="reverse", speed_m_s=0.5, accel_m_s2=2.0, duration_s=10, seed=8034, crf=33,
+        wet_patches=((1.70, 2.10),), wet_highlight=1.5, **SHAKE, **LIT, **BRICK), []),
+    # starts dark (0-1.2 s) while setting off at 0.4 m/s^2 (ramp 0-1 s); its final brake (7-8 s) is
+    # almost all in a 1 s burst of lost frames (6.9-7.9 s): the run ends just after the camera returns
+    "r6-start-dark-setoff0.4-end-drop-brake-grass-20deg-0.4": (dict(
+        tilt_deg=20, profile="accel", speed_m_s=0.4, accel_m_s2=0.4, duration_s=8, seed=8035, crf=31,
+        led_blackouts=((0.0, 1.2),), dropped_bursts=((6.9, 7.9),), **DARK, **LIT, **GRASS), []),
+    # starts with 13 frames lost while setting off at 2.5 m/s^2; lost frames across the set-off of go 2
+    # (3.45-3.75 s), the end of the brake into stand 2 (5.3-5.45 s) and two bursts in go 3's set-off;
+    # 300 mm blocks
+    "r6-start-drop-setoff2.5-short-drops-mas300-30deg-0.7": (dict(
+        tilt_deg=30, **_sg(0.7, 2.5, 3.5, 1.5), duration_s=10, seed=8036, crf=34,
+        dropped_bursts=((0.0, 0.45), (3.45, 3.75), (5.3, 5.45), (6.95, 7.15), (7.25, 7.45)),
+        **_mas(300.0, 75.0, 12.0)), []),
+    # --- inspection stands while blind ---
+    # dark 3.0-6.8 s: the brake (0.8 m/s^2, 3.125-3.5 s), a 3 s stand, 0.3 s of the set-off
+    "r6-inspect3s-dark-brake-setoff-brick-0deg-0.3": (dict(
+        tilt_deg=0, **_sg(0.3, 0.8, 6.5, 3.0), duration_s=10, seed=8037, crf=28,
+        led_blackouts=((3.0, 6.8),), **DARK, **LIT, **BRICK), []),
+    # a 5 s stand at a leak: blind on the wet stretch from y 0.434 (t ~2.3 s, cruising) through the brake
+    # (2.6-3 s), the stand (3-8 s) and the set-off (8-8.4 s) until y 0.727 (t ~9.3 s); CRF 35
+    "r6-inspect5s-on-leak-wet-mas215-10deg-0.2": (dict(
+        tilt_deg=10, **_sg(0.2, 0.5, 8.0, 5.0), duration_s=11, seed=8038, crf=35,
+        wet_patches=((0.40, 0.85),), wet_highlight=1.4, **LIT, **_mas(215.0)), []),
+    # the camera stalls while the crawler stands 2 s for photos: 66 frames lost from the end of the brake
+    # (1.5 m/s^2) to 0.1 s into the set-off (2.4-4.6 s); 48 lost strictly inside stand 2 (7.2-8.8 s)
+    "r6-inspect2s-in-drops-mas60-shake-35deg-0.5": (dict(
+        tilt_deg=35, **_sg(0.5, 1.5, 4.5, 2.0), duration_s=11, seed=8039, crf=30,
+        dropped_bursts=((2.4, 4.6), (7.2, 8.8)), **SHAKE, **_mas(60.0, 60.0, 8.0)), []),
+    # --- creeping ---
+    # 0.03 m/s for 12 s (0.36 m): six bursts of lost frames, CRF 36, shake
+    "r6-creep0.03-drops-mas150-shake-40deg": (dict(
+        tilt_deg=40, speed_m_s=0.03, duration_s=12, seed=8040, crf=36,
+        dropped_bursts=((1.0, 1.3), (2.0, 2.2), (2.5, 2.8), (6.0, 7.5), (9.0, 9.1), (9.25, 9.35)),
+        **SHAKE, **_mas(150.0)), []),
+    # 0.05 m/s, 0.3 m/s^2, 2 s stands (2-4, 6-8, 10-12 s): dark from 0.33 s before the first brake to 0.5 s
+    # after its set-off (1.5-4.5 s); dark across the second set-off (7.9-8.1 s)
+    "r6-creep0.05-stopgo-dark-stands-grass-20deg": (dict(
+        tilt_deg=20, **_sg(0.05, 0.3, 4.0, 2.0), duration_s=12, seed=8041, crf=30,
+        led_blackouts=((1.5, 4.5), (7.9, 8.1)), **DARK, **LIT, **GRASS), []),
+    # --- chains of short gaps ---
+    # accelerating at 0.3 m/s^2 (0-1.5 s): dark, lost, dark, lost; braking (7.5-9 s): lost, dark, lost, dark
+    "r6-gap-chain-accel0.3-brick-30deg-0.45": (dict(
+        tilt_deg=30, profile="accel", speed_m_s=0.45, accel_m_s2=0.3, duration_s=9, seed=8042, crf=36,
+        led_blackouts=((0.6, 0.8), (1.1, 1.35), (7.85, 8.05), (8.4, 8.6)),
+        dropped_bursts=((0.9, 1.0), (1.45, 1.6), (7.6, 7.75), (8.15, 8.3)), **DARK, **LIT, **BRICK), []),
+    # reversal (0.6 m/s^2, 4.22-5.38 s) at y 1.476 inside a wet stretch (blind for y > 1.36), 9 frames
+    # lost just after the turn (4.9-5.2 s); CRF 38, shake
+    "r6-reverse0.6-wet-drop-mas215-crf38-shake-40deg-0.35": (dict(
+        tilt_deg=40, profile="reverse", speed_m_s=0.35, accel_m_s2=0.6, duration_s=12, seed=8043, crf=38,
+        wet_patches=((1.45, 1.90),), wet_highlight=1.6, dropped_bursts=((4.9, 5.2),), **SHAKE, **LIT,
+        **_mas(215.0)), []),
+    # --- walls, compression, ride ---
+    # a 12 mm sediment hump (y 1.2-2.1 m, t 2-3.5 s): the camera rises toward the crown and the car pitches
+    # (tilt 5 -> 2.7 up the slope, 7.3 down it); dark over its crest (2.4-2.9 s); CRF 40
+    "r6-sediment-hump-dark-brick-crf40-5deg-0.6": (dict(
+        tilt_schedule=((0.0, 5.0), (1.95, 5.0), (2.05, 2.7), (2.45, 2.7), (2.55, 5.0), (2.95, 5.0), (3.05, 7.3),
+                       (3.45, 7.3), (3.55, 5.0)),
+        height_profile=((1.2, 0.0), (1.5, 12.0), (1.8, 12.0), (2.1, 0.0)),
+        speed_m_s=0.6, duration_s=7, seed=8044, crf=40, led_blackouts=((2.4, 2.9),), **DARK, **LIT, **BRICK), []),
+    # fast, 1.2 m/s^2: brakes (6.25-7 s) onto a wet stretch, stands on it, sets off off it (blind
+    # ~6.45-8.3 s); 21 frames lost from the last brake into stand 3 (10.9-11.6 s); CRF 38, big shake
+    "r6-fast-stopgo-wet-stand-mas215-crf38-shake-40deg-0.9": (dict(
+        tilt_deg=40, **_sg(0.9, 1.2, 4.0, 1.0), duration_s=12, seed=8045, crf=38,
+        wet_patches=((3.95, 4.45),), wet_highlight=1.3, dropped_bursts=((10.9, 11.6),), **BIGSHAKE, **LIT,
+        **_mas(215.0)), []),
+    # back to back: wet wall (blind from t ~2.68 s, cruising), dark (2.87-3.6 s: the 1 m/s^2 brake
+    # 2.95-3.3 s), lost frames (3.6-4.7 s: the end of the stand and the set-off at 4.5 s); CRF 34, shake
+    "r6-wet-dark-drop-chain-brake1-setoff1-grass-0deg-0.35": (dict(
+        tilt_deg=0, **_sg(0.35, 1.0, 4.5, 1.2), duration_s=10, seed=8046, crf=34,
+        wet_patches=((0.80, 1.02),), wet_highlight=1.5, led_blackouts=((2.87, 3.6),),
+        dropped_bursts=((3.6, 4.7),), **DARK, **SHAKE, **LIT, **GRASS), []),
+}
+
+INDEPENDENT = {**FIRST, **SECOND, **THIRD, **FOURTH, **FIFTH}

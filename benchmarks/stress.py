@@ -147,7 +147,7 @@ STOPS = {
 }
 CASES.update({name: (fields, []) for name, fields in STOPS.items()})
 
-# independent (--independent): four reviewers' sets, written without seeing the cases above
+# independent (--independent): five reviewers' sets, written without seeing the cases above
 from independent import INDEPENDENT  # noqa: E402
 
 CASES.update(INDEPENDENT)
@@ -221,7 +221,7 @@ def main(argv=None):
     ap.add_argument("--stops", action="store_true",
                     help="the stop runs instead: a crawler that stops and goes inside the lobes' wet stretches")
     ap.add_argument("--independent", action="store_true",
-                    help="four reviewers' independent sets instead (benchmarks/independent.py)")
+                    help="five reviewers' independent sets instead (benchmarks/independent.py)")
     ap.add_argument("--wall", metavar="IMAGE",
                     help="every case on this photographed wall instead of its own texture: a grey image "
                          "file, or skimage:brick|gravel|grass (a held-out check)")
