@@ -12,10 +12,10 @@
   counts as faster allows for the jitter the believed speeds show lately: a car that pitches reads
   its pitch as a few pixels of speed a frame. Under shading that stays put (a keyframe tracked
   flat-fielded) tracks read a stand whatever the crawler does: there a stand must be seen coming.
-- Copies: after a gap, a frame the video encoder copied from the last one (almost no pixel changed)
-  is no news of the motion. A camera's own frames always differ (sensor noise), and a moving
-  textured wall cannot be copied; a smooth wall under a fixed highlight can, and its copied blocks
-  read as a stand. The motion gate cannot tell that from a stop in the gap, so a copy never ends one.
+- Copies: after a gap, a faint frame the video encoder copied from the last one (almost no pixel
+  changed) is no news of the motion. A camera's own frames always differ (sensor noise), and a moving
+  textured wall cannot be copied (its copy is a stand); a smooth wall under a fixed highlight can,
+  and its copied blocks read as a stand. The motion gate cannot tell that from a stop in the gap, so a copy never ends one.
   Nor, from a gap until the wall is seen to move, or on a keyframe under shading that stays put,
   do tracks on faint patches the encoder copied while it coded the rest of the frame anew.
 - Stands: a standstill keeps the picture. Tracks that read no motion while the frame grows less
@@ -33,8 +33,6 @@ import cv2
 import numpy as np
 
 from .codec import REF_TEXTURE_DN
-
-COPY_TEXTURE_DN = 2.0    # a copied frame with more fine texture stood (copies of moving walls: <= 1.1 DN in 309 stress runs)
 from .consensus import FadingMean, median
 from .flow import encoder_copy
 
@@ -42,6 +40,7 @@ SPEED_NOISE_RATE = 0.05   # the speed's jitter is remembered over ~20 believed f
 SPEED_NOISE_MIN = 10      # ...and counts once 10 have shown it
 LIGHT_STEP = 0.1          # a blind frame this much brighter or darker than the last measured: the light changed
 DRIVE_MEMORY_S = 5.0      # the fastest believed speed is the drive's for this long
+COPY_TEXTURE_DN = 2.0     # a copied frame with more fine texture stood (copies of moving walls: <= 1.1 DN, 309 stress runs)
 REMATCH_NCC = 0.3         # a match across a gap whose patches' fine texture correlates less is not the wall's...
 REMATCH_AFTER_S = 0.2     # ...once this long blind: over a few frames the guess stays on the wall, and at CRF 40
                           # the encoder leaves a wall's fine texture only as blocks
