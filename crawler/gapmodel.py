@@ -297,7 +297,7 @@ def stops(g: Gap, T: float, v1: float = 0.0, hard: float = math.inf) -> float | 
     return -g.v0 / g.a0 if abs(v1) <= hard * (T + g.v0 / g.a0) else None
 
 
-def model_var(p: BridgeParams, T: float, v0: float | None, settled: bool = False, sa=0.0, lag=0.0) -> float:
+def model_var(p: BridgeParams, T: float, v0: float | None, settled: bool = False, sa: float = 0.0, lag: float = 0.0) -> float:
     """Variance of a gap of T carried by the model. The speed wanders like a random walk the
     camera did not see (variance speed_diffusion * t): its integral over the gap has variance
     q T^3 / 3 with only the speed before known, q T^3 / 12 once the speed after settles it (a

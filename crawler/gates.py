@@ -13,9 +13,10 @@
   its pitch as a few pixels of speed a frame. Under shading that stays put (a keyframe tracked
   flat-fielded) tracks read a stand whatever the crawler does: there a stand must be seen coming.
 - Copies: after a gap, a faint frame the video encoder copied from the last one (almost no pixel
-  changed) is no news of the motion. A camera's own frames always differ (sensor noise), and a moving
-  textured wall cannot be copied (its copy is a stand); a smooth wall under a fixed highlight can,
-  and its copied blocks read as a stand. The motion gate cannot tell that from a stop in the gap, so a copy never ends one.
+  changed) is no news of the motion. A camera's own frames always differ (sensor noise), and a
+  moving textured wall cannot be copied (its copy is a stand); a smooth wall under a fixed
+  highlight can, and its copied blocks read as a stand. The motion gate cannot tell that from a
+  stop in the gap, so a faint copy never ends one.
   Nor, from a gap until the wall is seen to move, or on a keyframe under shading that stays put,
   do tracks on faint patches the encoder copied while it coded the rest of the frame anew.
 - Stands: a standstill keeps the picture. Tracks that read no motion while the frame grows less
