@@ -20,7 +20,6 @@ afresh (its distance does not). This stage turns that into a distance that never
   the camera pitching on a bouncing car, compression; each frame's pose error cancels between the
   steps that end and start there, so it is the measured distance's scatter about a straight line),
   and every bridged gap's (the speed's error and the changes the model could not see, a random walk).
-
 Pure: no I/O, no clock; fed one odometer estimate per frame.
 """
 
@@ -122,8 +121,9 @@ class GapBridge:
 
     def _setting_off(self, g: Gap, t0: float, changed_at: float | None):
         """A gap that opens as the crawler sets off out of a stand (it stood for min_stand_s up to
-        SET_OFF_S before, and moves now, slower than its cruise the same way): it drives on to its
-        cruise at the drive's rate, as after a stand the frames showed (gapmodel.speed_after_stand).
+        SET_OFF_S before, and moves now slower than half its cruise the same way, or below it at a
+        start's rate the frames showed): it drives on to its cruise at that rate or the drive's, as
+        after a stand the frames showed (gapmodel.speed_after_stand).
         Carried at the speed of its first frames, an independent stress run's set-off onto a wet
         wall was bridged at 0.008 m/s for 2 s where it drove at 0.3. One that opens on a stand, as
         the lit picture changed (at `changed_at`, Estimate.changed: a standing crawler's does not), set
@@ -132,14 +132,14 @@ class GapBridge:
         p, stood, c, v = self.p, self._stood, g.cruise, g.v0
         if stood is None or c is None or v is None or t0 - stood[1] > SET_OFF_S or standing(p, c):
             return
-        late = 0.0                    # when it set off, after t0
+        late, seen = 0.0, start_rate_seen(p, g)     # when it set off, after t0; its rate, if the frames showed it
         if standing(p, v):
             if changed_at is None or t0 - stood[1] > TIME_EPS:
                 return
             g.either_way, late = True, (changed_at - t0) / 2
-        elif g.a0 * v < 0 or v * c <= 0 or abs(v) >= 0.5 * abs(c):
+        elif g.a0 * v < 0 or v * c <= 0 or abs(v) >= (abs(c) - p.ramp_dv_m_s if seen else 0.5 * abs(c)):
             return
-        rate = g.up if start_rate_seen(p, g) else drive_rate(p)       # a start's rate the frames showed
+        rate = g.up if seen else drive_rate(p)
         g.resumed = (late + abs(c - v) / (2 * rate), c, math.inf)
         g.set_off_var = rate_range_var(p, abs(c - v), c) + (c * late) ** 2 / 3.0   # its rate, and when
         g.edges_var += g.set_off_var
