@@ -40,7 +40,7 @@ def measure_serially(odometer: Odometer, frames):
     """(frame, estimate) of each frame as it comes, in this process ([odometry] workers = 1; the
     pipeline of crawler/workers.py yields the same pairs, a few frames later)."""
     for frame in frames:
-        yield frame, odometer.update(frame.gray, frame.t_s)
+        yield frame, odometer.update(frame.gray, frame.t_s, frame.intra)
 
 
 def _resumed_inspection(resume: dict | None, fresh: Inspection) -> Inspection:

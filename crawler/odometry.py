@@ -4,8 +4,7 @@ Each feature is measured against the keyframe it was found in, not the previous 
 compressed video is biased toward zero motion on every image pair, and one long baseline carries
 that bias once instead of once per frame. The previous frame only supplies the starting guess (a
 phase-correlation shift turned into a wall displacement, so the guess follows the geometry of every
-row). Per-feature displacements along the axis are corrected for rolling shutter and reduced to one
-step by a median/MAD consensus.
+row). Per-feature axial displacements, corrected for rolling shutter, make one median/MAD step.
 
 A frame is measured only when it can be (gates.py): without texture it gets the dense shift
 (dense.py) or nothing; a consensus no crawler's acceleration allows is refused. Frames not
@@ -94,9 +93,11 @@ class Odometer:
         self._speed.reset()
         self.pose.new_count()      # tilt auto measures no step from before it again into the new count
 
-    def update(self, frame: np.ndarray, t_s: float) -> Estimate:
-        """Process one full grey frame (only its ROI is read) taken at t_s seconds."""
+    def update(self, frame: np.ndarray, t_s: float, intra: bool = False) -> Estimate:
+        """Process one full grey frame (only its ROI is read) taken at t_s s (`intra`: an I-frame)."""
         self.frame += 1
+        if intra:                  # coded anew: the stand watch compares nothing across it
+            self._dense.stands.recoded()
         x, y, w, h = self.roi
         roi = frame[y:y + h, x:x + w]
         try:

@@ -24,6 +24,7 @@ class Frame:
     t_s: float
     gray: np.ndarray
     qp: float | None = None   # a recording's mean quantiser (H.264 QP); None for raw frames (crawler/codec.py)
+    intra: bool = False       # a recording's I-frame: the encoder coded the picture anew (crawler/stands.py)
 
 
 class FrameSource(Protocol):

@@ -33,8 +33,8 @@ class StandParams:
     frames: int = 3                   # ...this many in a row: the crawler stands...
     evidence: int = 5                 # ...measured against at least this many that changed with the motion,
     alike: float = 0.25               # ...their texture within this share of the frame's
-    moves: int = 4                    # a stand ends at this many changed frames in a row (fewer: a keyframe
-                                      # that codes the still picture anew changes `lag` comparisons)
+    moves: int = 4                    # a stand ends at this many changed frames in a row, one of them at
+                                      # `slow` at least (a drive's); else at twice as many (a crawl's)
     memory: int = 9                   # the changes the yardstick is the median of
     slow: float = 0.6                 # a frame that changed less than this share of it is slow (a brake's)...
     slow_frames: int = 6              # ...and becomes part of it only this many in a row (a slower drive)
@@ -64,6 +64,7 @@ class StandWatch:
         self._from = None             # ...since when (half way from the frame before the first of them)
         self._moves = 0               # changed frames in a row
         self._slow = 0                # ...of them slow ones
+        self._fast = False            # ...one of them not slow
         self._stand_yardstick = None  # the yardstick the open stand was seen against
         self._broken = False          # a dark or flattened frame since the last still one
         self.set_off = None           # where a stand ended because the frames moved again (take_set_off)
@@ -76,6 +77,16 @@ class StandWatch:
         self._seen.clear()
         self._stills = self._moves = self._slow = 0
         self._broken = True           # a stand's end is not dated across it
+
+    def recoded(self):
+        """A recording's I-frame: the encoder coded the picture anew, and compared with the frames
+        before it, all of it changed (a still wet wall at CRF 38: by 0.3-0.33 of what the drive's
+        motion changed frames by, where it had changed by 0.06-0.09; a stand of 1.5 s ended there, and
+        the bridge drove on through the rest: +18.5 % of the path). Nothing is compared across it; a
+        stand goes on. The P-frames after it settle over a few frames (0.19-0.23 of the yardstick,
+        four in a row): a stand ends on changes a drive makes (`moves`)."""
+        self._seen.clear()
+        self._stills = self._moves = self._slow = 0
 
     def measured(self):
         """A frame measured: any stand is over, but what the motion changed the frames by (the drive
@@ -127,10 +138,10 @@ class StandWatch:
             # a slow frame (a brake's) is a drive's only when it goes on: taken at once, a brake's
             # frames pulled the yardstick down until a stand's noise passed for a drive
             slow = yardstick is not None and change < self.p.slow * yardstick
-            self._slow = self._slow + 1 if slow else 0
+            self._slow, self._fast = (self._slow + 1 if slow else 0), (self._fast and self._moves > 1) or not slow
             if self.since is None and (not slow or self._slow >= self.p.slow_frames):
                 self._moved = (self._moved + [(change, texture)])[-self.p.memory:]
-            elif self.since is not None and self._moves >= self.p.moves:
+            elif self.since is not None and self._moves >= self.p.moves * (1 if self._fast else 2):
                 self.since, self.set_off = None, self.until   # (inside a stand a change is not yet the
                                                               # drive's: a keyframe's)
             return self.stand

@@ -132,6 +132,7 @@ class VideoReplay:
     def frames(self) -> Iterator[Frame]:
         first = None
         last = float("-inf")
+        anew = False                # an I-frame since the last frame handed on (a paced one may skip it)
         for k, frame in self._decoded():
             t = self._time_of(frame, k)
             if first is None:
@@ -140,11 +141,12 @@ class VideoReplay:
             if t <= last:
                 raise VideoError(f"{self.path.name}: frame {k} time {t:.6f} s does not increase "
                                  f"({self.timing})")
-            last = t
+            last, anew = t, anew or _intra(frame)
             if self.pacer is not None and not self.pacer.due(t - first):
                 self.frames_dropped += 1
                 continue
-            yield Frame(k, t - first, _y_plane(frame), _mean_qp(frame))
+            yield Frame(k, t - first, _y_plane(frame), _mean_qp(frame), anew)
+            anew = False
             if self.pacer is not None:
                 self.pacer.asked()
         self._report_losses()
@@ -254,6 +256,12 @@ class VideoReplay:
 ENC_PARAMS = 19                   # AV_FRAME_DATA_VIDEO_ENC_PARAMS (FFmpeg >= 4.4)
 ENC_PARAMS_H264 = 1               # AV_VIDEO_ENC_PARAMS_H264: QP on H.264's scale (VP9's and MPEG-2's differ)
 _ENC_HEAD = struct.Struct("@INNii")  # AVVideoEncParams: nb_blocks, blocks_offset, block_size, type, qp
+
+
+def _intra(frame) -> bool:
+    """An I-frame: coded anew, not from the frames before it."""
+    import av
+    return frame.pict_type == av.video.frame.PictureType.I
 
 
 def _mean_qp(frame) -> float | None:

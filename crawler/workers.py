@@ -143,6 +143,8 @@ class _Entry:
     seq: int = -1
     worker: int = -1
     used: bool = False
+    qp: float | None = None     # the frame's own (ports.Frame)
+    intra: bool = False
 
 
 class _Worker:
@@ -253,20 +255,20 @@ class TrackerPool:
         self._current = entry
         try:
             img = self.ring.frames[entry.slot]
-            est = self.odometer.update(img, entry.t_s)
+            est = self.odometer.update(img, entry.t_s, entry.intra)
         finally:
             self._current = None
         self._ready.pop(entry.seq, None)        # measured without its worker's tracks (no texture)
         self._sync()
         try:
-            yield Frame(entry.index, entry.t_s, img), est
+            yield Frame(entry.index, entry.t_s, img, entry.qp, entry.intra), est
         finally:
             self._free.append(entry.slot)
 
     def _admit(self, frame) -> _Entry:
         slot = self._free.pop()
         np.copyto(self.ring.frames[slot], frame.gray)      # the camera's buffer goes back at once
-        entry = _Entry(frame.index, frame.t_s, slot)
+        entry = _Entry(frame.index, frame.t_s, slot, qp=frame.qp, intra=frame.intra)
         self._sync()
         self._send(entry)
         return entry

@@ -118,3 +118,19 @@ def test_flat_fielded_keyframes_are_tracked_flattened_by_the_workers_too(render_
     pooled, counts = _replay(run, s, workers=3, depth=1)
     assert sum(flats) >= 3
     assert pooled == alone and counts["tracked_by_workers"] >= 40
+
+
+def test_the_pool_hands_on_each_frame_s_quantiser_and_i_frame_flag(run24):
+    """A pooled replay dropped the frames' QP (so sigma had no compression term) and would drop the
+    I-frames the stand watch must not compare across (crawler/stands.py)."""
+    s = load(None, ["mount.tilt_deg=24"], {})
+    cam = recording_camera(s.camera)
+    with VideoReplay(run24["h264"], cam, default_roi=thesis_roi(cam.width, cam.height)) as src:
+        direct = [(f.index, f.intra) for f in src.frames()]
+    with VideoReplay(run24["h264"], cam, default_roi=thesis_roi(cam.width, cam.height)) as src:
+        odo = build_odometer(s, cam, src.default_roi)
+        with TrackerPool(odo, (cam.height, cam.width), 2) as pool:
+            pooled = [(f.index, f.intra, f.qp) for f, _ in pool.measure(src.frames())]
+    assert [p[:2] for p in pooled] == direct
+    assert direct[0][1] and sum(intra for _, intra in direct) < len(direct) / 10     # I-frames are few
+    assert all(qp is not None and qp > 0 for *_, qp in pooled)
