@@ -234,7 +234,8 @@ class AutoTilt(FixedTilt):
         # tilt where a track may be far off; the readings' variance, strays cut, is the sharper measure
         for key, (moved_px, sample) in self.search.samples.items():
             if key != serial:
-                self.track.add(*self._reading(moved_px, *sample), 0.0)
+                a, slope, at, sigma = self._reading(moved_px, *sample)
+                self.track.add(a, slope, at, 0.0, sigma)
                 self.tau = self.track.value - m.tilt_rad
 
     def _solve(self) -> float:
@@ -256,7 +257,8 @@ class AutoTilt(FixedTilt):
         closing, self._closing = self._closing, None
         if self.track is None or closing is None:
             return
-        began = self.track.add(*self._reading(*closing), t_s)
+        a, slope, at, sigma = self._reading(*closing)
+        began = self.track.add(a, slope, at, t_s, sigma)
         if began is None:
             self.tau = self.track.value - self.projection.mount.tilt_rad
             return
@@ -269,7 +271,8 @@ class AutoTilt(FixedTilt):
 
     def _reading(self, moved_px, xy_k, xy_c, shutter):
         """The parabola through the disagreement at the estimate and either side of it: (curvature,
-        slope at the estimate, the estimate), scaled to weigh by the features' travel. A change of
+        slope at the estimate, the estimate), scaled to weigh by the features' travel, and the
+        reading's own sigma (radians). A change of
         the car's pitch or height between the two frames puts a row profile into the steps: a tilt
         error of the change over the travel times the geometry's own factor. Weighed by travel,
         the keyframes' changes sum to the last frame's pose less the first's; weighed alike (the
@@ -286,7 +289,9 @@ class AutoTilt(FixedTilt):
                           for d in (-h, 0.0, h))
         a, slope = (c_lo + c_hi - 2 * c0) / (2 * h * h), (c_hi - c_lo) / (2 * h)
         weight = moved_px / (self.p.acquire_px * a) if a > 0 else 0.0
-        return a * weight, slope * weight, t0
+        # its own sigma: what no tilt explains (its least), over the curvature and the tracks' number
+        least = c0 - slope * slope / (4 * a) if a > 0 else math.inf
+        return a * weight, slope * weight, t0, math.sqrt(max(least, 0.0) / (a * len(xy_k))) if a > 0 else math.inf
 
     def _measure_again(self, hop: Hop, new) -> float:
         """The hop's step at the new mount: the change in metres. Its pitch and height are kept when

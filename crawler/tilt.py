@@ -24,7 +24,8 @@ class TiltParams:
     cusum_slack: float = 1.0           # readings within this many sigmas are noise...
     cusum_limit: float = 12.0          # ...and this much summed excess is a step
     jump_deg: float = 3.0              # two keyframes' readings in a row this far off, the same way
-    jump_sigmas: float = 4.0           # ...and this many times the readings' scatter: a step at once
+    jump_sigmas: float = 4.0           # ...and this many times the readings' scatter: a step at once,
+    own_sigmas: float = 2.0            # ...and this many times each reading's own sigma (AutoTilt._reading)
     outlier_sigmas: float = 3.0        # a reading this far off feeds the step detector only
     converged_deg: float = 0.1         # the estimate counts as found below this sigma
     memory: float = 0.98               # weight a keyframe's reading keeps per later reading (a creeping mount)
@@ -87,9 +88,11 @@ class TiltTrack:
     def var(self) -> float:
         return max(self._scatter + 2.0 * self._lag, 0.1 * self._scatter) / max(self._n, 1.0)
 
-    def add(self, a: float, slope: float, at: float, t_s: float) -> float | None:
-        """A keyframe's parabola: curvature a (per rad^2) and slope at tilt `at`; a step returns
-        when it began."""
+    def add(self, a: float, slope: float, at: float, t_s: float, sigma: float = 0.0) -> float | None:
+        """A keyframe's parabola: curvature a (per rad^2) and slope at tilt `at`, and the reading's
+        own sigma; a step returns when it began. A reading beyond a jump but within own_sigmas of
+        its own sigma says nothing (a wet edge's: 4 deg off at 4-7 deg of its own, two in a row
+        took a still camera for a turn, and the keyframe the new tilt forced read a stand: -29.9 %)."""
         if not (math.isfinite(a) and math.isfinite(slope) and a > 0):
             return None
         raw = at - slope / (2 * a)
@@ -97,6 +100,8 @@ class TiltTrack:
         least = float(np.clip(raw, self.value - jump, self.value + jump))
         if self._n >= 3:
             side = 0 if abs(raw - self.value) <= jump else (1 if raw > self.value else -1)
+            if side and abs(raw - self.value) <= self.p.own_sigmas * sigma:
+                return None
             if side:                               # no mount creeps this far in a keyframe: a turn, if
                 if side == self._jumped[0]:        # the next keyframe says so too (one shake does not)
                     return self.detector.jumped(self._jumped[1])

@@ -621,3 +621,23 @@ def test_an_operator_reset_ends_tilt_auto_s_epoch():
     assert pose.tilt.epoch_m == pytest.approx(0.1)
     odometer.set_distance(0.0)
     assert pose.tilt.hops == [] and pose.tilt.epoch_m == 0.0
+
+
+def test_a_reading_too_unsure_of_itself_is_no_turn_of_the_camera():
+    """At a wet edge's keyframes, two readings in a row 4 deg off the tilt, each with 3.4-3.8 deg of
+    its own (what no tilt explains in its tracks' disagreement), were taken for a turn: the search
+    moved the camera 2 deg and the keyframe it forced read a stand (-29.9 % of the path). A reading
+    within twice its own sigma says nothing; a sure one is a turn as before."""
+    from crawler.tilt import TiltTrack
+
+    def turned(own_deg):
+        track = TiltTrack(0.0, sigma=math.radians(0.4))
+        rng = np.random.default_rng(4)
+        for n in range(10):                           # the tilt, read within 0.4 deg
+            least = math.radians(rng.normal(0.0, 0.4))
+            assert track.add(1.0, -2.0 * least, 0.0, 0.2 * n) is None
+        off = math.radians(4.0)
+        return [track.add(1.0, -2.0 * off, 0.0, 2.0 + 0.2 * k, math.radians(own_deg)) for k in range(2)]
+
+    assert turned(3.6) == [None, None]
+    assert turned(0.1)[1] is not None                # a turn (begun where the readings last agreed)
