@@ -1302,3 +1302,8 @@ def test_a_gap_that_opens_past_half_a_set_off_seen_speeding_up_drives_on_to_the_
     err = d[-1] - truth(t[-1])
     assert br[-1] and abs(err) < 0.05                  # carried: ramp to the cruise (read within 5 %), then it
     assert abs(err) < 2 * s[-1]
+    # a crawl's cruise (0.09 m/s) is less than twice the 5 cm/s: below half of it, a set-off as before
+    # (a review found it carried at its first speed: -137.5 mm for -7.9)
+    crawl = brake_stand_go(0.09, 1.0, 0.3, 3.0, 0.3)
+    t, d, s, br = drive(crawl, [(3.14, 4.5)], 4.49, speed=True)
+    assert br[-1] and abs(d[-1] - crawl(t[-1])) < 0.02
