@@ -129,8 +129,31 @@ def test_the_pool_hands_on_each_frame_s_quantiser_and_i_frame_flag(run24):
         direct = [(f.index, f.intra) for f in src.frames()]
     with VideoReplay(run24["h264"], cam, default_roi=thesis_roi(cam.width, cam.height)) as src:
         odo = build_odometer(s, cam, src.default_roi)
+        told = []                                       # the odometer's stand watch hears of each I-frame
+        odo._dense.stands.recoded = lambda: told.append(odo.frame)
         with TrackerPool(odo, (cam.height, cam.width), 2) as pool:
             pooled = [(f.index, f.intra, f.qp) for f, _ in pool.measure(src.frames())]
     assert [p[:2] for p in pooled] == direct
+    assert told == [k for k, intra in direct if intra]
     assert direct[0][1] and sum(intra for _, intra in direct) < len(direct) / 10     # I-frames are few
     assert all(qp is not None and qp > 0 for *_, qp in pooled)
+
+
+def test_a_paced_replay_that_skips_an_i_frame_flags_the_next_frame_it_hands_on(run24):
+    """A realtime replay drops frames the loop was too late for; the stand watch must still hear that
+    the picture was coded anew (crawler/video.py)."""
+    cam = recording_camera(load(None, ["mount.tilt_deg=24"], {}).camera)
+    with VideoReplay(run24["h264"], cam) as src:
+        flagged = [f.index for f in src.frames() if f.intra]
+
+    class SkipIFrames:                                   # a loop late exactly for the I-frames
+        def due(self, t_s):
+            return round(t_s * 30) not in flagged
+
+        def asked(self):
+            pass
+
+    with VideoReplay(run24["h264"], cam) as src:
+        src.pacer = SkipIFrames()
+        handed = [(f.index, f.intra) for f in src.frames()]
+    assert [k for k, intra in handed if intra] == [k + 1 for k in flagged]
