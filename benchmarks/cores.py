@@ -38,7 +38,7 @@ def frames_of(h264: Path):
 
     src = VideoReplay(h264, Camera.from_fov(WINDOW[2], WINDOW[3], 30.0, 30.0))
     with src:
-        return [(f.gray.copy(), f.t_s) for f in src.frames()]
+        return [(f.gray.copy(), f.t_s, f.intra) for f in src.frames()]
 
 
 def run(frames, workers: int, depth=None, stages=None):
@@ -49,7 +49,7 @@ def run(frames, workers: int, depth=None, stages=None):
     from crawler.ports import Frame
 
     odo = build(WINDOW, None, os.environ.get("CORES_POSE", "on"))   # the default config: pitch and height per frame
-    src = (Frame(i, t, g) for i, (g, t) in enumerate(frames))
+    src = (Frame(i, t, g, intra=k) for i, (g, t, k) in enumerate(frames))
     t0 = time.perf_counter()
     if workers == 1:
         d = [e.distance_m for _, e in measure_serially(odo, src)]
@@ -85,8 +85,9 @@ def arm(frames, h264: Path, workers_list, n1: int, n2: int):
     import arm_yardstick as ay
 
     with tempfile.TemporaryDirectory() as tmp:
-        np.save(Path(tmp) / "frames.npy", np.stack([g for g, _ in frames[:n2]]))
-        np.save(Path(tmp) / "times.npy", np.array([t for _, t in frames[:n2]]))
+        np.save(Path(tmp) / "frames.npy", np.stack([g for g, _, _ in frames[:n2]]))
+        np.save(Path(tmp) / "times.npy", np.array([t for _, t, _ in frames[:n2]]))
+        np.save(Path(tmp) / "intra.npy", np.array([k for _, _, k in frames[:n2]], dtype=bool))
         for w in [1, *workers_list]:
             runs = [ay.run(["benchmarks/cores.py", "--_arm", tmp, str(n), str(w)]) for n in (n1, n2)]
             print_arm(w, runs, n2 - n1)
@@ -159,11 +160,12 @@ def _arm(tmp, n, workers):
     cv2.setNumThreads(1)
     frames = np.load(Path(tmp) / "frames.npy")
     times = np.load(Path(tmp) / "times.npy")
+    intra = np.load(Path(tmp) / "intra.npy")
     st = arm_yardstick.Stages()
     st.wrap(Odometer, "update", 1)
     for name in ("_admit", "_sync", "_collect"):
         st.wrap(W.TrackerPool, name, 2)
-    data = [(frames[i], float(times[i])) for i in range(int(n))]
+    data = [(frames[i], float(times[i]), bool(intra[i])) for i in range(int(n))]
     d, counts, _ = run(data, int(workers), stages=st)
     print(json.dumps({"distance_m": d[-1], "counts": counts}))
 

@@ -53,7 +53,7 @@ def error_at(args):
     lost = 0
     with VideoReplay(out / f"{name}.h264", cam) as src:
         for f in src.frames():
-            lost += not odo.update(f.gray, f.t_s).tracking
+            lost += not odo.update(f.gray, f.t_s, f.intra).tracking
     err = 100 * abs(odo.distance - meta["true_distance_m"]) / meta["true_distance_m"]
     px_per_frame = speed / fps / (0.2256 / cam.fy)
     return fps, speed, config, err, lost, px_per_frame

@@ -126,7 +126,7 @@ def timing(args, name, window, h264, meta):
     t = time.perf_counter_ns()
     with VideoReplay(h264, build(window, None).camera) as src:
         for f in src.frames():
-            frames.append((f.gray.copy(), f.t_s))
+            frames.append((f.gray.copy(), f.t_s, f.intra))
     decode_ns = (time.perf_counter_ns() - t) / len(frames)
     st = Stages()
     st.wrap(flow, "track", "track (LK fwd+bwd)")
@@ -135,8 +135,8 @@ def timing(args, name, window, h264, meta):
     st.wrap(flow, "coarse_shift", "coarse guess")
     odo = build(window, params_from(args), args.pose)
     t = time.perf_counter_ns()
-    for gray, ts in frames:
-        est = odo.update(gray, ts)
+    for gray, ts, intra in frames:
+        est = odo.update(gray, ts, intra)
     total = (time.perf_counter_ns() - t) / len(frames)
     for fn in ("track", "detect", "coarse_image", "coarse_shift"):    # unwrap
         setattr(flow, fn, getattr(flow, fn).__closure__[0].cell_contents)
@@ -158,17 +158,24 @@ def timing(args, name, window, h264, meta):
 
 def count_instructions(args, window, h264, n_frames):
     """Odometry instructions per frame: callgrind totals for N and 2N frames, differenced."""
-    import numpy as np
 
     from crawler.video import VideoReplay
 
     with VideoReplay(h264, build(window, None).camera) as src:
-        frames = [(f.gray.copy(), f.t_s) for f in src.frames()]
+        frames = [(f.gray.copy(), f.t_s, f.intra) for f in src.frames()]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        np.save(tmp / "frames.npy", np.stack([g for g, _ in frames]))
-        np.save(tmp / "times.npy", np.array([t for _, t in frames]))
+        _save_frames(tmp, frames)
         return _callgrind_runs(args, window, tmp, n_frames)
+
+
+def _save_frames(tmp: Path, frames):
+    """(grey, time, I-frame) of each decoded frame, as the guest or valgrind's run loads them."""
+    import numpy as np
+
+    np.save(tmp / "frames.npy", np.stack([g for g, _, _ in frames]))
+    np.save(tmp / "times.npy", np.array([t for _, t, _ in frames]))
+    np.save(tmp / "intra.npy", np.array([k for _, _, k in frames], dtype=bool))
 
 
 def _callgrind_runs(args, window, tmp: Path, n_frames: int) -> float:
@@ -194,10 +201,12 @@ def _count(tmp, n, window, argd):
     cv2.setNumThreads(1)
     frames = np.load(Path(tmp) / "frames.npy")
     times = np.load(Path(tmp) / "times.npy")
+    intra = np.load(Path(tmp) / "intra.npy")
     opts = json.loads(argd)
     odo = build(json.loads(window), params_from(argparse.Namespace(**opts)), opts.get("pose", "off"))
     for i in range(int(n)):
-        odo.update(frames[i % len(frames)], float(times[i % len(frames)]))
+        j = i % len(frames)
+        odo.update(frames[j], float(times[j]), bool(intra[j]))
 
 
 # -- ARM yardstick (benchmarks/arm_yardstick.py) ------------------------------------------------------
@@ -219,14 +228,12 @@ ARM_STAGES = {  # stage number: what the instructions counted there did
 
 def preload(h264: Path, tmp: Path, window) -> int:
     """Decodes once on the host: the guest replays raw frames, so decoding is not counted."""
-    import numpy as np
 
     from crawler.video import VideoReplay
 
     with VideoReplay(h264, build(window, None).camera) as src:
-        frames = [(f.gray.copy(), f.t_s) for f in src.frames()]
-    np.save(tmp / "frames.npy", np.stack([g for g, _ in frames]))
-    np.save(tmp / "times.npy", np.array([t for _, t in frames]))
+        frames = [(f.gray.copy(), f.t_s, f.intra) for f in src.frames()]
+    _save_frames(tmp, frames)
     return len(frames)
 
 
@@ -341,6 +348,7 @@ def _arm(tmp, n, window, argd, marks):
     cv2.setNumThreads(1)
     frames = np.load(Path(tmp) / "frames.npy")
     times = np.load(Path(tmp) / "times.npy")
+    intra = np.load(Path(tmp) / "intra.npy")
     opts = json.loads(argd)
     odo = build(json.loads(window), params_from(argparse.Namespace(**opts)), opts.get("pose", "off"))
     st = _mark_stages() if marks == "1" else None
@@ -348,7 +356,7 @@ def _arm(tmp, n, window, argd, marks):
         st.set(10)
     keyframes = lost = 0
     for i in range(int(n)):
-        est = odo.update(frames[i], float(times[i]))
+        est = odo.update(frames[i], float(times[i]), bool(intra[i]))
         keyframes += est.keyframe
         lost += not est.tracking
     if st:
