@@ -81,13 +81,11 @@ def host(frames, workers_list, truth_m):
 
 
 def arm(frames, h264: Path, workers_list, n1: int, n2: int):
-    import numpy as np
     import arm_yardstick as ay
+    from throughput import _save_frames
 
     with tempfile.TemporaryDirectory() as tmp:
-        np.save(Path(tmp) / "frames.npy", np.stack([g for g, _, _ in frames[:n2]]))
-        np.save(Path(tmp) / "times.npy", np.array([t for _, t, _ in frames[:n2]]))
-        np.save(Path(tmp) / "intra.npy", np.array([k for _, _, k in frames[:n2]], dtype=bool))
+        _save_frames(Path(tmp), frames[:n2])
         for w in [1, *workers_list]:
             runs = [ay.run(["benchmarks/cores.py", "--_arm", tmp, str(n), str(w)]) for n in (n1, n2)]
             print_arm(w, runs, n2 - n1)

@@ -288,10 +288,11 @@ class AutoTilt(FixedTilt):
         c_lo, c0, c_hi = (disagreement(kind(replace(m, tilt_rad=t0 + d)), xy_k, xy_c, shutter, sway)
                           for d in (-h, 0.0, h))
         a, slope = (c_lo + c_hi - 2 * c0) / (2 * h * h), (c_hi - c_lo) / (2 * h)
-        weight = moved_px / (self.p.acquire_px * a) if a > 0 else 0.0
-        # its own sigma: what no tilt explains (its least), over the curvature and the tracks' number
-        least = c0 - slope * slope / (4 * a) if a > 0 else math.inf
-        return a * weight, slope * weight, t0, math.sqrt(max(least, 0.0) / (a * len(xy_k))) if a > 0 else math.inf
+        if not a > 0:                  # no least: no reading (TiltTrack.add refuses it)
+            return 0.0, 0.0, t0, math.inf
+        weight = moved_px / (self.p.acquire_px * a)
+        least = c0 - slope * slope / (4 * a)    # what no tilt explains: over the curvature and the tracks, its sigma
+        return a * weight, slope * weight, t0, math.sqrt(max(least, 0.0) / (a * len(xy_k)))
 
     def _measure_again(self, hop: Hop, new) -> float:
         """The hop's step at the new mount: the change in metres. Its pitch and height are kept when

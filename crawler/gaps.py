@@ -137,7 +137,7 @@ class GapBridge:
             if changed_at is None or t0 - stood[1] > TIME_EPS:
                 return
             g.either_way, late = True, (changed_at - t0) / 2
-        elif g.a0 * v < 0 or v * c <= 0 or abs(v) >= max(abs(c) - (p.ramp_dv_m_s if seen else 0.5 * abs(c)), 0.5 * abs(c)):
+        elif g.a0 * v < 0 or v * c <= 0 or abs(v) >= (max(abs(c) - p.ramp_dv_m_s, 0.5 * abs(c)) if seen else 0.5 * abs(c)):
             return
         rate = g.up if seen else drive_rate(p)
         g.resumed = (late + abs(c - v) / (2 * rate), c, math.inf)

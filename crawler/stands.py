@@ -63,8 +63,7 @@ class StandWatch:
         self._stills = 0              # still frames in a row
         self._from = None             # ...since when (half way from the frame before the first of them)
         self._moves = 0               # changed frames in a row
-        self._slow = 0                # ...of them slow ones
-        self._fast = False            # ...one of them not slow
+        self._slow = 0                # ...of them slow ones (the last, in a row: all of them if as many)
         self._stand_yardstick = None  # the yardstick the open stand was seen against
         self._broken = False          # a dark or flattened frame since the last still one
         self.set_off = None           # where a stand ended because the frames moved again (take_set_off)
@@ -138,10 +137,10 @@ class StandWatch:
             # a slow frame (a brake's) is a drive's only when it goes on: taken at once, a brake's
             # frames pulled the yardstick down until a stand's noise passed for a drive
             slow = yardstick is not None and change < self.p.slow * yardstick
-            self._slow, self._fast = (self._slow + 1 if slow else 0), (self._fast and self._moves > 1) or not slow
+            self._slow = self._slow + 1 if slow else 0
             if self.since is None and (not slow or self._slow >= self.p.slow_frames):
                 self._moved = (self._moved + [(change, texture)])[-self.p.memory:]
-            elif self.since is not None and self._moves >= self.p.moves * (1 if self._fast else 2):
+            elif self.since is not None and self._moves >= self.p.moves * (2 if self._slow == self._moves else 1):
                 self.since, self.set_off = None, self.until   # (inside a stand a change is not yet the
                                                               # drive's: a keyframe's)
             return self.stand

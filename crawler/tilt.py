@@ -100,9 +100,9 @@ class TiltTrack:
         least = float(np.clip(raw, self.value - jump, self.value + jump))
         if self._n >= 3:
             side = 0 if abs(raw - self.value) <= jump else (1 if raw > self.value else -1)
-            if side and abs(raw - self.value) <= self.p.own_sigmas * sigma:
-                return None
             if side:                               # no mount creeps this far in a keyframe: a turn, if
+                if abs(raw - self.value) <= self.p.own_sigmas * sigma:
+                    return None                    # (unless the reading is too unsure of itself)
                 if side == self._jumped[0]:        # the next keyframe says so too (one shake does not)
                     return self.detector.jumped(self._jumped[1])
                 self._jumped = (side, t_s)
