@@ -318,6 +318,38 @@ def test_keyframes_soon_after_one_far_below_the_pull_are_not_tested(texture):
     assert keyframe_features(img, 0.05, None, 0.0, params, 6)[2] is None      # nothing to compare with
 
 
+def test_the_pull_is_read_over_two_keyframes_and_either_flattens(texture):
+    """One reading of the pull scatters by about the threshold itself: under one highlight, a crawl
+    at 0.05 m/s renewing its keyframes a few mm apart read 0.003-0.12, and the keyframes that read
+    under 0.03 were tracked as they came and read the wall 45 % short for 0.4 s (a lobe run on seed
+    300: -10.6 mm, 43 % of frames within 2 sigma). The pull is the mean of the keyframe's reading and
+    the last one's pull; the reading or the mean above the threshold flattens."""
+    from types import SimpleNamespace
+
+    from crawler import flow
+    from crawler.keyframe import keyframe_features
+
+    yy, xx = np.mgrid[0:240, 0:240]
+    lobe = 100.0 * np.exp(-((xx - 120.0) ** 2 + (yy - 110.0) ** 2) / (2 * 60.0 ** 2))
+    faint = 110 + 0.08 * (texture.astype(np.float32) - 128)
+
+    def at(px):                                   # the wall moved px rows under the highlight
+        img = cv2.warpAffine(faint, np.float32([[1, 0, -200], [0, 1, px - 240]]), (240, 240)) + lobe
+        return np.clip(img, 0, 255).astype(np.uint8)
+
+    params, img = OdometryParams(), at(100.0)
+    fp = params.flow
+    low = flow.static_pull(img, at(99.0), flow.detect(img, fp, 6), fp)     # a reading that sees little
+    high = flow.static_pull(img, at(60.0), flow.detect(img, fp, 6), fp)
+    assert low < fp.flat_pull / 10 and high > 3 * fp.flat_pull
+    for before_pull, other, flat in ((None, 99.0, False), (0.1, 99.0, True), (0.0, 60.0, True)):
+        before = SimpleNamespace(img=at(other), t_s=0.0, pull=before_pull)
+        _, seen, pull = keyframe_features(img, 0.2, before, 0.0, params, 6)
+        read = low if other == 99.0 else high
+        assert pull == pytest.approx(read if before_pull is None else 0.5 * (read + before_pull), abs=1e-6)
+        assert (seen is not None) == flat
+
+
 def test_a_faint_wall_braking_to_a_stand_is_measured_by_the_dense_shift_all_the_way(texture):
     # the dense shift believes a shift once three in a row go on steadily: a steady speed, and a
     # steady brake too, which a crawler stopping on a wet wall shows; before, only shifts within
