@@ -66,24 +66,25 @@ def find_features(img: np.ndarray, motion_rows: float, params, border_px: int, r
     return pts
 
 
-PULL_RETEST_S = 0.1     # a keyframe this soon after one tested far below the threshold is not tested
+PULL_RETEST_S = 0.1     # a keyframe this soon after one whose pull is far below the threshold is not tested
 
 
 def keyframe_features(img: np.ndarray, t_s: float, before, motion_rows: float, params, border_px: int):
     """A new keyframe's features, what LK is to see of it and its pull: (pts, seen, pull), seen None
     for the frame as it came. Where shading that stays put in the image would pull the features'
-    LK toward no motion (flow.static_pull against `before`, the last Keyframe's picture, read as
-    the mean with its pull), the keyframe is tracked flattened (flow.flatten), with features found
-    where texture is left once the shading is gone. Within PULL_RETEST_S of a keyframe tested far
-    below the threshold no keyframe is tested (the test costs 0.8 M ARM instructions: at 0.6 m/s, a
+    LK toward no motion (flow.static_pull against `before`, the last Keyframe's picture, kept as a
+    running mean with its pull), the keyframe is tracked flattened (flow.flatten), with features
+    found where texture is left once the shading is gone. Within PULL_RETEST_S of a keyframe whose
+    pull is far below the threshold no keyframe is tested (the test costs 0.8 M ARM instructions: at 0.6 m/s, a
     keyframe every third frame, 6 % of a frame's cost)."""
     pts = find_features(img, motion_rows, params, border_px)
     fp, pull = params.flow, None
     if before is not None and len(pts) and (before.pull is None or before.pull > fp.flat_pull / 2
                                             or t_s - before.t_s >= PULL_RETEST_S):
-        read = flow.static_pull(img, before.img, pts, fp)
         # one reading scatters by about the threshold itself (0.003-0.12 on keyframes a few mm apart
-        # under one highlight): the pull is the mean with the last keyframe's, and either flattens
+        # under one highlight; below zero, slopes that disagree: none): the pull is a running mean,
+        # half this reading and half the last keyframe's pull, and it or the reading flattens
+        read = max(0.0, flow.static_pull(img, before.img, pts, fp))
         pull = read if before.pull is None else 0.5 * (read + before.pull)
         if max(read, pull) > fp.flat_pull:
             seen = flow.flatten(img, fp)

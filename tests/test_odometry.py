@@ -318,12 +318,12 @@ def test_keyframes_soon_after_one_far_below_the_pull_are_not_tested(texture):
     assert keyframe_features(img, 0.05, None, 0.0, params, 6)[2] is None      # nothing to compare with
 
 
-def test_the_pull_is_read_over_two_keyframes_and_either_flattens(texture):
+def test_the_pull_is_a_running_mean_and_it_or_the_reading_flattens(texture, monkeypatch):
     """One reading of the pull scatters by about the threshold itself: under one highlight, a crawl
     at 0.05 m/s renewing its keyframes a few mm apart read 0.003-0.12, and the keyframes that read
     under 0.03 were tracked as they came and read the wall 45 % short for 0.4 s (a lobe run on seed
-    300: -10.6 mm, 43 % of frames within 2 sigma). The pull is the mean of the keyframe's reading and
-    the last one's pull; the reading or the mean above the threshold flattens."""
+    300: -10.6 mm, 43 % of frames within 2 sigma). The pull is half the reading (none below zero)
+    and half the last keyframe's pull; the reading or that mean above the threshold flattens."""
     from types import SimpleNamespace
 
     from crawler import flow
@@ -339,15 +339,25 @@ def test_the_pull_is_read_over_two_keyframes_and_either_flattens(texture):
 
     params, img = OdometryParams(), at(100.0)
     fp = params.flow
-    low = flow.static_pull(img, at(99.0), flow.detect(img, fp, 6), fp)     # a reading that sees little
-    high = flow.static_pull(img, at(60.0), flow.detect(img, fp, 6), fp)
+    low = flow.static_pull(img, at(99.0), flow.detect(img, fp, 6), fp)     # the same fine texture: little
+    high = flow.static_pull(img, at(60.0), flow.detect(img, fp, 6), fp)    # 40 px away: the highlight
     assert low < fp.flat_pull / 10 and high > 3 * fp.flat_pull
-    for before_pull, other, flat in ((None, 99.0, False), (0.1, 99.0, True), (0.0, 60.0, True)):
-        before = SimpleNamespace(img=at(other), t_s=0.0, pull=before_pull)
-        _, seen, pull = keyframe_features(img, 0.2, before, 0.0, params, 6)
-        read = low if other == 99.0 else high
-        assert pull == pytest.approx(read if before_pull is None else 0.5 * (read + before_pull), abs=1e-6)
-        assert (seen is not None) == flat
+    before = SimpleNamespace(img=at(99.0), t_s=0.0, pull=0.1)
+    _, seen, pull = keyframe_features(img, 0.2, before, 0.0, params, 6)
+    assert pull == pytest.approx(0.5 * (low + 0.1)) and seen is not None      # held by the last one's
+    before.pull = None
+    _, seen, pull = keyframe_features(img, 0.2, before, 0.0, params, 6)
+    assert pull == pytest.approx(low) and seen is None                         # a reading on its own
+
+    # the decision, reading by reading: (last pull, reading, t_s) -> (pull, flattened)
+    for last, read, t_s, want, flat in ((0.0, 0.04, 0.2, 0.02, True),     # the reading alone
+                                        (0.04, 0.025, 0.2, 0.0325, True),  # the mean alone
+                                        (0.02, 0.02, 0.2, 0.02, False),
+                                        (0.1, -0.3, 0.2, 0.05, True),      # below zero: none
+                                        (0.01, 0.2, 0.05, None, False)):   # soon after one far below: untested
+        monkeypatch.setattr(flow, "static_pull", lambda *a, r=read: r)
+        _, seen, pull = keyframe_features(img, t_s, SimpleNamespace(img=img, t_s=0.0, pull=last), 0.0, params, 6)
+        assert pull == (None if want is None else pytest.approx(want)) and (seen is not None) == flat
 
 
 def test_a_faint_wall_braking_to_a_stand_is_measured_by_the_dense_shift_all_the_way(texture):
