@@ -82,10 +82,10 @@ def keyframe_features(img: np.ndarray, t_s: float, before, motion_rows: float, p
     if before is not None and len(pts) and (before.pull is None or before.pull > fp.flat_pull / 2
                                             or t_s - before.t_s >= PULL_RETEST_S):
         # one reading scatters by about the threshold itself (0.003-0.12 on keyframes a few mm apart
-        # under one highlight; below zero, slopes that disagree: none): the pull is a running mean,
-        # half this reading and half the last keyframe's pull, and it or the reading flattens
-        read = max(0.0, flow.static_pull(img, before.img, pts, fp))
-        pull = read if before.pull is None else 0.5 * (read + before.pull)
+        # under one highlight, and below zero): the pull is a running mean, half this reading and
+        # half the last keyframe's pull (never below none), and it or the reading flattens
+        read = flow.static_pull(img, before.img, pts, fp)
+        pull = max(0.0, read if before.pull is None else 0.5 * (read + before.pull))
         if max(read, pull) > fp.flat_pull:
             seen = flow.flatten(img, fp)
             return find_features(seen, motion_rows, params, border_px, raw=img), seen, pull

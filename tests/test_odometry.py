@@ -322,8 +322,8 @@ def test_the_pull_is_a_running_mean_and_it_or_the_reading_flattens(texture, monk
     """One reading of the pull scatters by about the threshold itself: under one highlight, a crawl
     at 0.05 m/s renewing its keyframes a few mm apart read 0.003-0.12, and the keyframes that read
     under 0.03 were tracked as they came and read the wall 45 % short for 0.4 s (a lobe run on seed
-    300: -10.6 mm, 43 % of frames within 2 sigma). The pull is half the reading (none below zero)
-    and half the last keyframe's pull; the reading or that mean above the threshold flattens."""
+    300: -10.6 mm, 43 % of frames within 2 sigma). The pull is half the reading and half the last
+    keyframe's pull, never below none; the reading or that mean above the threshold flattens."""
     from types import SimpleNamespace
 
     from crawler import flow
@@ -353,7 +353,8 @@ def test_the_pull_is_a_running_mean_and_it_or_the_reading_flattens(texture, monk
     for last, read, t_s, want, flat in ((0.0, 0.04, 0.2, 0.02, True),     # the reading alone
                                         (0.04, 0.025, 0.2, 0.0325, True),  # the mean alone
                                         (0.02, 0.02, 0.2, 0.02, False),
-                                        (0.1, -0.3, 0.2, 0.05, True),      # below zero: none
+                                        (0.1, -0.3, 0.2, 0.0, False),      # never below none...
+                                        (0.0, 0.2, 0.2, 0.1, True),        # ...so a reading counts in full
                                         (0.01, 0.2, 0.05, None, False)):   # soon after one far below: untested
         monkeypatch.setattr(flow, "static_pull", lambda *a, r=read: r)
         _, seen, pull = keyframe_features(img, t_s, SimpleNamespace(img=img, t_s=0.0, pull=last), 0.0, params, 6)
