@@ -75,8 +75,8 @@ def keyframe_features(img: np.ndarray, t_s: float, before, motion_rows: float, p
     LK toward no motion (flow.static_pull against `before`, the last Keyframe's picture, kept as a
     running mean with its pull), the keyframe is tracked flattened (flow.flatten), with features
     found where texture is left once the shading is gone. Within PULL_RETEST_S of a keyframe whose
-    pull is far below the threshold no keyframe is tested (the test costs 0.8 M ARM instructions: at 0.6 m/s, a
-    keyframe every third frame, 6 % of a frame's cost)."""
+    pull is far below the threshold no keyframe is tested (the test costs 0.8 M ARM instructions:
+    at 0.6 m/s, a keyframe every third frame, 6 % of a frame's cost)."""
     pts = find_features(img, motion_rows, params, border_px)
     fp, pull = params.flow, None
     if before is not None and len(pts) and (before.pull is None or before.pull > fp.flat_pull / 2

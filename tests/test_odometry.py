@@ -354,7 +354,7 @@ def test_the_pull_is_a_running_mean_and_it_or_the_reading_flattens(texture, monk
                                         (0.04, 0.025, 0.2, 0.0325, True),  # the mean alone
                                         (0.02, 0.02, 0.2, 0.02, False),
                                         (0.1, -0.3, 0.2, 0.0, False),      # never below none...
-                                        (0.0, 0.2, 0.2, 0.1, True),        # ...so a reading counts in full
+                                        (0.0, 0.2, 0.2, 0.1, True),        # ...so the next one is tested
                                         (0.01, 0.2, 0.05, None, False)):   # soon after one far below: untested
         monkeypatch.setattr(flow, "static_pull", lambda *a, r=read: r)
         _, seen, pull = keyframe_features(img, t_s, SimpleNamespace(img=img, t_s=0.0, pull=last), 0.0, params, 6)
