@@ -148,22 +148,19 @@ def _decode(h264, n):
 def _arm(tmp, n, workers):
     """Inside qemu: n preloaded frames through workers = N, the main process's stages marked."""
     import cv2
-    import numpy as np
 
     import arm_yardstick
+    from throughput import _load_frames
 
     from crawler import workers as W
     from crawler.odometry import Odometer
 
     cv2.setNumThreads(1)
-    frames = np.load(Path(tmp) / "frames.npy")
-    times = np.load(Path(tmp) / "times.npy")
-    intra = np.load(Path(tmp) / "intra.npy")
     st = arm_yardstick.Stages()
     st.wrap(Odometer, "update", 1)
     for name in ("_admit", "_sync", "_collect"):
         st.wrap(W.TrackerPool, name, 2)
-    data = [(frames[i], float(times[i]), bool(intra[i])) for i in range(int(n))]
+    data = _load_frames(tmp)[:int(n)]
     d, counts, _ = run(data, int(workers), stages=st)
     print(json.dumps({"distance_m": d[-1], "counts": counts}))
 

@@ -158,14 +158,9 @@ def timing(args, name, window, h264, meta):
 
 def count_instructions(args, window, h264, n_frames):
     """Odometry instructions per frame: callgrind totals for N and 2N frames, differenced."""
-
-    from crawler.video import VideoReplay
-
-    with VideoReplay(h264, build(window, None).camera) as src:
-        frames = [(f.gray.copy(), f.t_s, f.intra) for f in src.frames()]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        _save_frames(tmp, frames)
+        preload(h264, tmp, window)
         return _callgrind_runs(args, window, tmp, n_frames)
 
 
@@ -176,6 +171,14 @@ def _save_frames(tmp: Path, frames):
     np.save(tmp / "frames.npy", np.stack([g for g, _, _ in frames]))
     np.save(tmp / "times.npy", np.array([t for _, t, _ in frames]))
     np.save(tmp / "intra.npy", np.array([k for _, _, k in frames], dtype=bool))
+
+
+def _load_frames(tmp) -> list:
+    """_save_frames' (grey, time, I-frame) of each frame, back."""
+    import numpy as np
+
+    frames, times, intra = (np.load(Path(tmp) / f"{name}.npy") for name in ("frames", "times", "intra"))
+    return [(g, float(t), bool(k)) for g, t, k in zip(frames, times, intra)]
 
 
 def _callgrind_runs(args, window, tmp: Path, n_frames: int) -> float:
@@ -196,17 +199,13 @@ def _callgrind_runs(args, window, tmp: Path, n_frames: int) -> float:
 def _count(tmp, n, window, argd):
     """Inside valgrind: run the odometry over n preloaded frames."""
     import cv2
-    import numpy as np
 
     cv2.setNumThreads(1)
-    frames = np.load(Path(tmp) / "frames.npy")
-    times = np.load(Path(tmp) / "times.npy")
-    intra = np.load(Path(tmp) / "intra.npy")
+    frames = _load_frames(tmp)
     opts = json.loads(argd)
     odo = build(json.loads(window), params_from(argparse.Namespace(**opts)), opts.get("pose", "off"))
     for i in range(int(n)):
-        j = i % len(frames)
-        odo.update(frames[j], float(times[j]), bool(intra[j]))
+        odo.update(*frames[i % len(frames)])
 
 
 # -- ARM yardstick (benchmarks/arm_yardstick.py) ------------------------------------------------------
@@ -228,7 +227,6 @@ ARM_STAGES = {  # stage number: what the instructions counted there did
 
 def preload(h264: Path, tmp: Path, window) -> int:
     """Decodes once on the host: the guest replays raw frames, so decoding is not counted."""
-
     from crawler.video import VideoReplay
 
     with VideoReplay(h264, build(window, None).camera) as src:
@@ -343,12 +341,9 @@ def _mark_stages():
 def _arm(tmp, n, window, argd, marks):
     """Inside qemu: the odometry over n preloaded frames; prints what it did as JSON."""
     import cv2
-    import numpy as np
 
     cv2.setNumThreads(1)
-    frames = np.load(Path(tmp) / "frames.npy")
-    times = np.load(Path(tmp) / "times.npy")
-    intra = np.load(Path(tmp) / "intra.npy")
+    frames = _load_frames(tmp)
     opts = json.loads(argd)
     odo = build(json.loads(window), params_from(argparse.Namespace(**opts)), opts.get("pose", "off"))
     st = _mark_stages() if marks == "1" else None
@@ -356,7 +351,7 @@ def _arm(tmp, n, window, argd, marks):
         st.set(10)
     keyframes = lost = 0
     for i in range(int(n)):
-        est = odo.update(frames[i], float(times[i]), bool(intra[i]))
+        est = odo.update(*frames[i])
         keyframes += est.keyframe
         lost += not est.tracking
     if st:
