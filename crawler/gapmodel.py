@@ -58,14 +58,14 @@ class Gap:
     edge_s: float = 0.0               # half the time of the start out of the stand shown (_edge)
     vis0: float = 0.0                 # the odometer's own distance at t0
     cruise: float | None = None       # the last steady speed measured before it (gaps.py)
+    drive: tuple = (None, None)       # the rates the drive was seen to set off and brake at (drive.py)
     resumed: tuple | None = None      # (model time, speed, until): after a stand shown, it drove on at that
                                       # speed (a braking gap: until another stand shown; else inf)
     carried_m: float = 0.0            # a braking gap: what it drove between stands shown before that
     open_at_close: bool = False       # a stand was still shown when the wall was measured again
     before_reset_m: float = 0.0       # the model's travel up to an operator's reset inside it
     either_way: bool = False          # it set off as it opened, which way not seen (gaps.py _setting_off)
-    set_off_var: float | None = None  # ...a set-off taken as it opened: the variance that added (a stand
-                                      # shown from before it takes it back)
+    set_off_var: float | None = None  # ...its variance (a stand shown from before it takes it back)
     across: bool = False              # the odometer measured across it: its step, checked by the speed after
     rejoin: float | None = None       # a frame measured inside a stand shown, and lost again: when
     alias: tuple | None = None        # ...and the stand shown again after it: (its since, the kept since)
@@ -76,6 +76,7 @@ class Gap:
         self.v0 = None if self.v0 is None else self.v0 * scale
         self.a0, self.sa, self.up = self.a0 * scale, self.sa * scale, self.up * scale
         self.cruise = None if self.cruise is None else self.cruise * scale
+        self.drive = tuple(None if r is None else r * scale for r in self.drive)
         self.resumed = None if self.resumed is None else (self.resumed[0], self.resumed[1] * scale, self.resumed[2])
         self.carried_m, self.edges_var = self.carried_m * scale, self.edges_var * scale ** 4   # (v * v / a)^2
         if self.before_reset_m:               # kept over an operator's reset: the count starts there
@@ -134,11 +135,11 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None, t_s: float | None = 
         if braking(g) and g.stand[1] - g.t0 >= -g.v0 / g.a0:   # the stop it implies, shown: it set
             if g.resumed is None:                      # off then, and drove on at its cruise (travel)
                 g.last_end, v = g.stand[1], speed_after_stand(p, g)
-                g.resumed = (g.last_end - g.t0 + edge_time(p, v), v, math.inf)
+                g.resumed = (g.last_end - g.t0 + edge_time(p, v, g), v, math.inf)
             elif g.confirmed and g.resumed[2] != math.inf:   # another stand shown ended: on again
                 (T0, v, until), g.last_end = g.resumed, g.stand[1]
                 g.carried_m += v * (faded(p, until) - faded(p, T0))
-                g.resumed = (max(until, g.last_end - g.t0 + edge_time(p, v)), v, math.inf)
+                g.resumed = (max(until, g.last_end - g.t0 + edge_time(p, v, g)), v, math.inf)
         g.stand, g.confirmed = None, False
     if stand is not None:
         if g.stand is None:
@@ -152,15 +153,14 @@ def see_stand(p: BridgeParams, g: Gap, stand: tuple | None, t_s: float | None = 
             _edge(p, g, 1.0)
             if braking(g) and g.resumed is not None and g.resumed[2] == math.inf:   # it stood again:
                 T0, v, _ = g.resumed                   # the carry ends, its brake taken off
-                g.resumed = (T0, v, max(T0, stand[0] - g.t0 - edge_time(p, v)))
+                g.resumed = (T0, v, max(T0, stand[0] - g.t0 - edge_time(p, v, g, start=False)))
 
 
 def speed_after_stand(p: BridgeParams, g: Gap) -> float:
     """The speed a crawler sets off to after a stand the frames showed: its drive's cruise, the last
-    steady speed measured before the gap, where the gap opened slower the same way (a brake that no
-    fit read, or a speed read over a moment: a stop run on another seed opened one at 0.062 m/s
-    from three frames of a brake, and carried the crawler at that after the stand where it drove
-    0.1: -25 mm), or standing (its speed's sign is noise); else the speed before it."""
+    steady speed measured before the gap, where the gap opened slower the same way (a brake no fit
+    read, or a speed read over a moment: a stop run opened one at 0.062 m/s from three frames of a
+    brake, and was carried at that where it drove 0.1: -25 mm), or standing; else the speed before."""
     c, v = g.cruise, g.v0
     if c is None or v is None or abs(c) <= abs(v):
         return v
@@ -175,10 +175,9 @@ def moving_speed(g: Gap) -> float:
 def set_off(p: BridgeParams, g: Gap, t1: float, v1: float, a1: float) -> float | None:
     """After a stand shown, a crawler still speeding up when the wall is measured again (at t1, v1,
     at a1) set off from rest v1 / a1 before: the gap's distance is the model's up to that stand and
-    the ramp since (the model carried the speed before the gap after it, which a gap that opened
-    during a brake had low). None: no stand ended in the gap, it is not seen speeding up, or the
-    ramp did not begin as the stand ended (within 0.1 s: the end is seen a frame or two late). A
-    speed at t1 against the ramp, within 0.1 s of rate of none, is a crawler that sets off just then."""
+    the ramp since. None: no stand ended in the gap, it is not seen speeding up, or the ramp did not
+    begin as the stand ended (within 0.1 s: the end is seen a frame or two late). A speed at t1
+    against the ramp, within 0.1 s of rate of none, is a crawler that sets off just then."""
     if g.last_end is None or g.stand is not None or not a1 or braking(g):
         return None
     if a1 * v1 <= 0:
@@ -194,26 +193,26 @@ def braking(g: Gap) -> bool:
     return g.v0 is not None and g.a0 * g.v0 < 0
 
 
-def drive_rate(p: BridgeParams) -> float:
-    """The rate a brake or start the frames do not show is taken at: the middle of the times the
-    allowed rates take (min_drive_accel_m_s2 to max_accel_m_s2)."""
-    return 2.0 / (1.0 / p.max_accel_m_s2 + 1.0 / p.min_drive_accel_m_s2)
+def drive_rate(p: BridgeParams, g: Gap, start: bool = True) -> float:
+    """The rate a start (or a brake) the frames do not show is taken at: the one this crawler's drive
+    was seen at (g.drive, crawler/drive.py; a start's for a brake not seen, and back), else the middle
+    of the times the allowed rates take (min_drive_accel_m_s2 to max_accel_m_s2)."""
+    seen = [r for r in (g.drive if start else g.drive[::-1]) if r is not None]
+    return seen[0] if seen else 2.0 / (1.0 / p.max_accel_m_s2 + 1.0 / p.min_drive_accel_m_s2)
 
 
-def edge_time(p: BridgeParams, v: float) -> float:
-    """Half the time a brake from v, or a start to it, takes at the drive's rate: what it covers,
-    at v, in that time."""
-    return abs(v) / (2 * drive_rate(p))
+def edge_time(p: BridgeParams, v: float, g: Gap, start: bool = True) -> float:
+    """Half the time a start to v (or a brake from it) takes at the drive's rate: what it covers."""
+    return abs(v) / (2 * drive_rate(p, g, start))
 
 
 def _edge(p: BridgeParams, g: Gap, share: float):
-    """One brake or start: half its time as stood, the rate's range as variance. One drive brakes and
-    sets off alike, so a stand's two are one error twice: the start adds three times the brake's
-    variance, making the stand's (2 x)^2."""
+    """One brake or start: half its time as stood, the rate's range as variance. A stand's two are
+    one drive's error twice: the start adds three times the brake's variance, the stand's (2 x)^2."""
     v = abs(moving_speed(g) or 0.0)
-    g.stood_s += edge_time(p, v)
+    g.stood_s += edge_time(p, v, g, start=False)
     after = g.resumed[1] if g.resumed is not None else speed_after_stand(p, g)
-    g.edge_s = edge_time(p, after or 0.0)                 # the start out of it: the clock waits for it
+    g.edge_s = edge_time(p, after or 0.0, g)              # the start out of it: the clock waits for it
     g.edges_var += share * rate_range_var(p, v, v)
 
 
@@ -341,12 +340,13 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
         # still standing when the wall was measured again: it never set off (measuring again ended
         # the stand, not the crawler); the model up to where it stood, with no brake out of a start
         return travel(p, g, g.before_last), 0.0
-    if shown and (moving_speed(g) * v1 >= 0 or standing(p, v1)) and abs(dv_run) < drive_rate(p) * T:
+    rate = drive_rate(p, g, start=abs(v1) > abs(moving_speed(g)))
+    if shown and (moving_speed(g) * v1 >= 0 or standing(p, v1)) and abs(dv_run) < rate * T:
         # the frames showed it stand and drive again: between the stands it drove at the speed before
         # (after one, at the speed it set off to; the time it stood is not in T), and a change to the
         # speed after came at the end, at the drive's rate (the trapezoid spread a brake measured as
         # the wall came back over the gap)
-        guess = travel(p, g, T) + 0.5 * dv_run * abs(dv_run) / drive_rate(p)
+        guess = travel(p, g, T) + 0.5 * dv_run * abs(dv_run) / rate
     elif ramped and g.up and g.v0 * v1 > 0 and 0 < gain < g.up * T:     # speeding up into it, then cruising
         guess = math.copysign(abs(g.v0) * T + gain * (T - 0.5 * gain / g.up), v1)
     elif ramped and a1 and dv * a1 > 0 and abs(dv) < abs(a1) * T:   # cruising, then the ramp seen after it

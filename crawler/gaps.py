@@ -29,6 +29,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+from .drive import DriveWatch
 from .framenoise import FrameNoise
 from .gapmodel import (BridgeParams, Gap, drive_rate, model_time, model_var, moving_speed, rate_range_var, rejoin,
                        see_stand, set_off, settled_travel, stand_state, standing, start_rate_seen, stops, travel,
@@ -71,8 +72,7 @@ class GapBridge:
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
         self._remeasured_at = None    # when the odometer last measured its steps at a new tilt
         self._carried: list = []      # [t0, t1, metres] of the gaps the model settled, newest last
-        self._cruise = (None, None)   # ((since, speed) of the odometer's speed held steady, (t, speed) of the
-                                      # last one held for history_s)
+        self.drive = DriveWatch(self.p)   # the cruise and rates the drive was seen at (drive.py)
         self._blind_at, self._held = None, None   # the last blind frame's (t, distance); the stands shown at a close
         self._still, self._stood = None, None     # (since, until, distance) the output stands at; the last stand
 
@@ -113,7 +113,7 @@ class GapBridge:
     def _open_gap(self, est=None) -> Gap:
         t0 = self._hist[-1][0]
         g = Gap(t0, self._out_m, *motion_before(self.p, self._hist, t0, self._settled_v, self._remeasured_at))
-        cruise = self._cruise[1]           # (t, speed): one older than the model's horizon is no guide
+        cruise, g.drive = self.drive.cruise, self.drive.rates()   # (a cruise older than the horizon: none)
         g.vis0 = self._out_m - self.offset_m
         g.cruise = cruise[1] if cruise is not None and cruise[0] >= t0 - self.p.max_bridge_s else None
         self._setting_off(g, t0, est.t_s if getattr(est, "changed", False) else None)
@@ -139,7 +139,7 @@ class GapBridge:
             g.either_way, late = True, (changed_at - t0) / 2
         elif g.a0 * v < 0 or v * c <= 0 or abs(v) >= (max(abs(c) - p.ramp_dv_m_s, 0.5 * abs(c)) if seen else 0.5 * abs(c)):
             return
-        rate = g.up if seen else drive_rate(p)
+        rate = g.up if seen else drive_rate(p, g)
         g.resumed = (late + abs(c - v) / (2 * rate), c, math.inf)
         g.set_off_var = rate_range_var(p, abs(c - v), c) + (c * late) ** 2 / 3.0   # its rate, and when
         g.edges_var += g.set_off_var
@@ -184,8 +184,7 @@ class GapBridge:
                 self._hist = deque((t, d + extra if t >= gap[1] else d) for t, d in self._hist)
         if self._settled_v is not None and self._settled_v[0] >= since:
             self._settled_v = (self._settled_v[0], self._settled_v[1] * scale)
-        if self._cruise[1] is not None and self._cruise[1][0] >= since:
-            self._cruise = (None, (self._cruise[1][0], self._cruise[1][1] * scale))
+        self.drive.rescaled(since, scale)
         if g is None or g.t0 < since:
             return False
         before = min(max((g.vis0 - (est.distance_m - over)) / old, 0.0), 1.0)   # the epoch's share before it
@@ -200,6 +199,7 @@ class GapBridge:
 
     def _blind(self, est) -> Bridged:
         self.noise.lost()
+        self.drive.lost()
         if self._settling is not None:    # the measurement since the gap was too short: it goes on
             self._settle_or_reopen()
         if self._gap is None:
@@ -243,12 +243,13 @@ class GapBridge:
                 self._settle_or_reopen()
         if gain:                              # the motion model reads its speeds from the history
             self._hist = deque(_remeasured(list(self._hist), gain, over))
+            self.drive.lost()                 # (a ramp's distances are not in one metre)
             if not _is_rescale(gain, over):   # ...a remount's re-measure has the shape of a ramp
                 self._remeasured_at = est.t_s
         if self._kf_vision is None:
             self._kf_vision = est.distance_m
         self.noise.track(est)
-        self._track_cruise(est)
+        self.drive.update(est.t_s, est.distance_m, est.speed_m_s, est.continuous)
         step_var = self._step_var(est)
         if est.keyframe:              # the keyframe's step is closed: its error is carried from now on
             self.var_meas += step_var
@@ -265,17 +266,6 @@ class GapBridge:
         self._watch_still(est.t_s, self._out_m)
         return Bridged(self._out_m, math.sqrt(total), False, self.noise.white(est), gap_T,
                        gap_T > 0 and self._settling is not None, self.corrected_m)
-
-    def _track_cruise(self, est):
-        """The drive's cruise: the odometer's speed, held within 5 % (or 1 cm/s) for history_s. A
-        crawler that stood inside a gap sets off to it (gapmodel.speed_after_stand)."""
-        v, (since, cruise) = est.speed_m_s, self._cruise
-        if v is None or not est.continuous or abs(v) < _MIN_CRUISE_M_S:
-            self._cruise = (None, cruise)
-        elif since is None or abs(v - since[1]) > max(0.01, 0.05 * abs(since[1])):
-            self._cruise = ((est.t_s, v), cruise)
-        elif est.t_s - since[0] >= self.p.history_s:
-            self._cruise = (since, (est.t_s, v))
 
     def _step_var(self, est) -> float:
         """The current keyframe step's variance: the tracks' noise, and the scale over the step."""
@@ -396,5 +386,4 @@ class GapBridge:
 
 _MIN_EPOCH_M = 0.02               # an epoch's scale is read from its metres: over less, from their noise
 _MAX_CARRIED = 64                 # gaps remembered for that scale (tilt auto's epoch keeps 400 steps)
-_MIN_CRUISE_M_S = 0.02            # a speed below this is a crawl or a stand's noise, no cruise
 SET_OFF_S = 0.5                   # a gap that opens this soon after a stand may open on a set-off

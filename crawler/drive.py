@@ -1,0 +1,142 @@
+"""What the crawler's drive was seen to do while the wall was measured, for the gap bridge (gaps.py).
+Pure: no I/O, no clock.
+
+A crawler's drive holds a speed (its cruise) and ramps between a stand and that speed at its
+controller's rate. A start or a brake the camera does not see (a wet wall the encoder flattened, a
+blackout) is likelier at the rate this drive's seen ones had than at any fixed guess: taken at the
+middle of the rates a drive may have (0.4 m/s^2), a stop-and-go crawler that set off at 0.6 m/s^2
+on a wet wall was carried 0.44 s late, 70 mm short over 2.2 s. So each whole ramp the frames show,
+from a stand to a held speed or back, is fitted for its rate (`ramp_rate`), and the gap model takes
+the last few's median (`DriveWatch.rates`). What the model allows for a rate it did not see (its
+sigma) is not narrowed by it: an operator may still brake harder than the drive's ramp.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from .gapmodel import BridgeParams
+
+
+STILL_M_S = 0.01          # an odometer speed within this is a stand (twice a measured speed's error)
+MIN_RAMP_M_S = 0.05       # a cruise slower than this ramps too little to read a rate from
+WINDOW_S = 4.0            # a stand and a cruise further apart than this are not one ramp
+KEPT = 3                  # the rates of the last few ramps of each kind; their median is the drive's
+
+
+class DriveWatch:
+    """The drive's cruise (the odometer's speed held within 5 % or 1 cm/s for history_s) and the
+    rates it was seen to set off and brake at. Fed each measured frame; `lost` at each blind one
+    (a ramp is read only where all of it was measured)."""
+
+    def __init__(self, p: BridgeParams):
+        self.p = p
+        self.cruise = None                  # (t, speed) of the last speed held for history_s
+        self._since = None                  # (t, speed) the speed has been held from
+        self._held = None                   # (from, to) of the last speed held, not yet braked from
+        self._still = None                  # (first, last) frame times of the stand going on
+        self._stood = None                  # (first, last) of the last stand held, not yet set off from
+        self._frames: deque = deque()       # (t, distance) measured in a row, the last WINDOW_S
+        self._rates = {True: deque(maxlen=KEPT), False: deque(maxlen=KEPT)}   # start, brake: (t, rate)
+
+    def rates(self) -> tuple:
+        """(start, brake): the median rate of the last ramps seen of each kind (None: none seen)."""
+        return tuple(float(np.median([r for _, r in self._rates[k]])) if self._rates[k] else None
+                     for k in (True, False))
+
+    def lost(self):
+        """A frame not measured: no ramp is read across it (the cruise held is the odometer's
+        speed's: it holds across a gap measured across)."""
+        self._frames.clear()
+        self._held, self._still, self._stood = None, None, None
+
+    def rescaled(self, since: float, scale: float):
+        """Tilt auto measured the steps since `since` again: their speeds and rates scale."""
+        if self.cruise is not None and self.cruise[0] >= since:
+            self.cruise, self._since = (self.cruise[0], self.cruise[1] * scale), None
+        for kind in self._rates.values():
+            for i, (t, r) in enumerate(kind):
+                kind[i] = (t, r * scale if t >= since else r)
+
+    def update(self, t: float, d: float, v: float | None, continuous: bool):
+        """One measured frame: its time, published distance and the odometer's speed."""
+        if not continuous:
+            self.lost()
+        self._frames.append((t, d))
+        while self._frames[0][0] < t - WINDOW_S:
+            self._frames.popleft()
+        if self._track_cruise(t, v if continuous else None) and self._stood is not None:
+            self._learn(True, self._stood, self._held)        # a start: from the stand to this speed
+            self._stood = None
+        if v is None or abs(v) > STILL_M_S:
+            self._still = None
+            return
+        self._still = (t, t) if self._still is None else (self._still[0], t)
+        if t - self._still[0] < self.p.history_s:
+            return
+        if self._held is not None and self._held[1] < self._still[0]:
+            self._learn(False, self._still, self._held)       # a brake: from the speed to this stand
+        self._stood, self._held = self._still, None
+
+    def _track_cruise(self, t: float, v: float | None) -> bool:
+        """Follow the speed held; True: a speed has just been held for history_s."""
+        since = self._since
+        if v is None or abs(v) < _MIN_CRUISE_M_S:
+            self._since = None
+        elif since is None or abs(v - since[1]) > max(0.01, 0.05 * abs(since[1])):
+            self._since = (t, v)
+        elif t - since[0] >= self.p.history_s:
+            new = self._held is None or self._held[0] != since[0]
+            self.cruise, self._held = (t, v), (since[0], t)
+            return new
+        return False
+
+    def _learn(self, start: bool, stand: tuple, held: tuple):
+        """A ramp between a stand and a held speed (each (first, last) frame times), all measured."""
+        t = np.array([f[0] for f in self._frames])
+        d = np.array([f[1] for f in self._frames])
+        lo, hi = min(stand[0], held[0]), max(stand[1], held[1])
+        if t[0] > lo + 0.1 or hi - lo > WINDOW_S:
+            return
+        on_stand, on_line = (t >= stand[0]) & (t <= stand[1]), (t >= held[0]) & (t <= held[1])
+        if on_stand.sum() < 3 or on_line.sum() < 3:
+            return
+        v, line = np.polyfit(t[on_line], d[on_line], 1)
+        span = (t >= lo) & (t <= hi)
+        rate = ramp_rate(t[span], d[span], float(np.median(d[on_stand])), float(v), float(line), start, self.p)
+        if rate is not None:
+            self._rates[start].append((held[0], rate))
+
+
+def ramp_rate(t: np.ndarray, d: np.ndarray, level: float, v: float, line: float, start: bool,
+              p: BridgeParams) -> float | None:
+    """The rate of a ramp at a constant rate between a stand at distance `level` and a cruise
+    d = line + v t (a start: the stand before; a brake: after), fitted to the distances d at t by
+    least squares over rates from min_drive_accel_m_s2 to hard_accel_m_s2. The cruise's line
+    meets the stand's level at the ramp's middle whatever its rate, so the rate is the one unknown.
+    None: too slow a cruise to read, or the best rate at either end of the range (not resolved)."""
+    if abs(v) < MIN_RAMP_M_S:
+        return None
+    mid = (level - line) / v
+    rates = np.geomspace(p.min_drive_accel_m_s2, p.hard_accel_m_s2, 64)[:, None]
+    half = abs(v) / (2 * rates)
+    sign = np.sign(v)
+    if start:       # still, then up to the line
+        into = np.maximum(t - (mid - half), 0.0)
+        model = np.where(t < mid + half, level + sign * 0.5 * rates * into * into, line + v * t)
+    else:           # the line, then down to a stand
+        left = np.maximum(mid + half - t, 0.0)
+        model = np.where(t > mid - half, level - sign * 0.5 * rates * left * left, line + v * t)
+    sse = ((model - d) ** 2).sum(axis=1)
+    best = int(np.argmin(sse))
+    if best in (0, len(sse) - 1):
+        return None
+    lo, mid_, hi = sse[best - 1:best + 2]       # the parabola's vertex through the three, in log rate
+    curve = lo - 2 * mid_ + hi
+    step = 0.5 * (lo - hi) / curve if curve > 0 else 0.0
+    return float(rates[best, 0] * (rates[1, 0] / rates[0, 0]) ** step)
+
+
+_MIN_CRUISE_M_S = 0.02            # a speed below this is a crawl or a stand's noise, no cruise

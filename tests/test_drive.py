@@ -1,0 +1,79 @@
+"""The drive's rates, read from whole ramps the frames showed (crawler/drive.py)."""
+
+import numpy as np
+import pytest
+
+from crawler.drive import DriveWatch, ramp_rate
+from crawler.gapmodel import BridgeParams
+
+FPS = 30.0
+
+
+def stop_and_go(up, down, v=0.3, stand_s=1.0, cruise_s=2.0):
+    """The true distance of a crawler that stands, sets off at `up` to v, cruises, brakes at `down`
+    to a stand, and stands."""
+    go, ramp_up, ramp_down = stand_s, v / up, v / down
+    cruising, braking = go + ramp_up, go + ramp_up + cruise_s
+
+    def truth(t):
+        if t < go:
+            return 0.0
+        if t < cruising:
+            return 0.5 * up * (t - go) ** 2
+        d = 0.5 * v * ramp_up + v * (min(t, braking) - cruising)
+        if t < braking:
+            return d
+        s = min(t - braking, ramp_down)
+        return d + v * s - 0.5 * down * s * s
+
+    return truth, braking + ramp_down + stand_s
+
+
+def watch(truth, end_s, noise_m=0.001, blind=(), seed=1):
+    """Feed a DriveWatch what the odometer would say: the distance with noise, and its speed as a
+    least-squares slope over the last 0.25 s; blind (t0, t1): frames not measured."""
+    rng = np.random.default_rng(seed)
+    w = DriveWatch(BridgeParams())
+    ts = np.arange(0.0, end_s, 1 / FPS)
+    ds = np.array([truth(t) for t in ts]) + rng.normal(0.0, noise_m, len(ts))
+    k = round(0.25 * FPS)
+    for i, t in enumerate(ts):
+        if any(a <= t < b for a, b in blind):
+            w.lost()
+            continue
+        lo = max(0, i - k)
+        v = float(np.polyfit(ts[lo:i + 1], ds[lo:i + 1], 1)[0]) if i - lo >= 2 else None
+        w.update(float(t), float(ds[i]), v, True)
+    return w
+
+
+@pytest.mark.parametrize("up,down", [(0.6, 0.6), (0.4, 0.8), (0.3, 2.0)])
+def test_the_rates_a_drive_set_off_and_braked_at_are_read_from_the_distances(up, down):
+    """A start and a brake seen whole, distances with 1 mm of noise: each rate within 12 %."""
+    truth, end = stop_and_go(up, down)
+    start, brake = watch(truth, end).rates()
+    assert start == pytest.approx(up, rel=0.12)
+    assert brake == pytest.approx(down, rel=0.12)
+
+
+def test_a_ramp_not_measured_whole_teaches_no_rate():
+    """Blind for 0.2 s in the middle of the start, and over the brake's end: neither is read (a ramp's
+    rate is its distances' shape, and half a ramp fits any rate); the cruise is still followed."""
+    truth, end = stop_and_go(0.6, 0.6)
+    w = watch(truth, end, blind=[(1.2, 1.4), (3.9, 4.2)])
+    assert w.rates() == (None, None)
+    assert w.cruise[1] == pytest.approx(0.3, rel=0.07)          # (held within 5 % into the brake)
+
+
+def test_ramp_rate_on_exact_distances_and_where_it_cannot_tell():
+    """Exact distances of a start at 0.5 m/s^2 to 0.4 m/s: the rate to 2 %. A cruise too slow to
+    read, or a step quicker than the range allows (a frame's jump): no rate."""
+    p = BridgeParams()
+    t = np.arange(0.0, 3.0, 1 / FPS)
+    go, a, v = 1.0, 0.5, 0.4
+    d = np.where(t < go, 0.0, np.where(t < go + v / a, 0.5 * a * (t - go) ** 2, v * (t - go) - v * v / (2 * a)))
+    line = -v * go - v * v / (2 * a)
+    assert ramp_rate(t, d, 0.0, v, line, True, p) == pytest.approx(a, rel=0.02)
+    assert ramp_rate(t, d * 0.1, 0.0, 0.04, line * 0.1, True, p) is None
+    jump = np.where(t < go, 0.0, v * (t - go))
+    assert ramp_rate(t, jump, 0.0, v, -v * go, True, p) is None
