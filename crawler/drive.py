@@ -14,10 +14,12 @@ sigma) is not narrowed by it: an operator may still brake harder than the drive'
 from __future__ import annotations
 
 from collections import deque
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .gapmodel import BridgeParams
+if TYPE_CHECKING:                       # (gapmodel takes its rates from here)
+    from .gapmodel import BridgeParams, Gap
 
 
 STILL_M_S = 0.01          # an odometer speed within this is a stand (twice a measured speed's error)
@@ -137,6 +139,25 @@ def ramp_rate(t: np.ndarray, d: np.ndarray, level: float, v: float, line: float,
     curve = lo - 2 * mid_ + hi
     step = 0.5 * (lo - hi) / curve if curve > 0 else 0.0
     return float(rates[best, 0] * (rates[1, 0] / rates[0, 0]) ** step)
+
+
+def drive_rate(p: BridgeParams, g: Gap, start: bool = True) -> float:
+    """The rate a start (or a brake) the frames do not show is taken at: the one this crawler's drive
+    was seen at (g.drive, crawler/drive.py; a start's for a brake not seen, and back), else the middle
+    of the times the allowed rates take (min_drive_accel_m_s2 to max_accel_m_s2)."""
+    seen = seen_rate(g, start)
+    return seen if seen is not None else 2.0 / (1.0 / p.max_accel_m_s2 + 1.0 / p.min_drive_accel_m_s2)
+
+
+def seen_rate(g: Gap, start: bool = True) -> float | None:
+    """The rate this drive was seen to start (or brake) at, or else the other (None: neither seen)."""
+    seen = [r for r in (g.drive if start else g.drive[::-1]) if r is not None]
+    return seen[0] if seen else None
+
+
+def edge_time(p: BridgeParams, v: float, g: Gap, start: bool = True) -> float:
+    """Half the time a start to v (or a brake from it) takes at the drive's rate: what it covers."""
+    return abs(v) / (2 * drive_rate(p, g, start))
 
 
 _MIN_CRUISE_M_S = 0.02            # a speed below this is a crawl or a stand's noise, no cruise

@@ -11,6 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from .drive import drive_rate, edge_time
+
 
 @dataclass(frozen=True)
 class BridgeParams:
@@ -191,19 +193,6 @@ def braking(g: Gap) -> bool:
     """Does the gap's model brake to a stop by itself (a brake seen before it)? Then a stand shown is
     the one it implies: it keeps its own clock."""
     return g.v0 is not None and g.a0 * g.v0 < 0
-
-
-def drive_rate(p: BridgeParams, g: Gap, start: bool = True) -> float:
-    """The rate a start (or a brake) the frames do not show is taken at: the one this crawler's drive
-    was seen at (g.drive, crawler/drive.py; a start's for a brake not seen, and back), else the middle
-    of the times the allowed rates take (min_drive_accel_m_s2 to max_accel_m_s2)."""
-    seen = [r for r in (g.drive if start else g.drive[::-1]) if r is not None]
-    return seen[0] if seen else 2.0 / (1.0 / p.max_accel_m_s2 + 1.0 / p.min_drive_accel_m_s2)
-
-
-def edge_time(p: BridgeParams, v: float, g: Gap, start: bool = True) -> float:
-    """Half the time a start to v (or a brake from it) takes at the drive's rate: what it covers."""
-    return abs(v) / (2 * drive_rate(p, g, start))
 
 
 def _edge(p: BridgeParams, g: Gap, share: float):

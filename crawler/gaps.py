@@ -29,9 +29,9 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from .drive import DriveWatch
+from .drive import DriveWatch, drive_rate
 from .framenoise import FrameNoise
-from .gapmodel import (BridgeParams, Gap, drive_rate, model_time, model_var, moving_speed, rate_range_var, rejoin,
+from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, rate_range_var, rejoin,
                        see_stand, set_off, settled_travel, stand_state, standing, start_rate_seen, stops, travel,
                        travel_to)
 from .motionfit import TIME_EPS, could_go, motion_before, ramp_rate
@@ -327,7 +327,10 @@ class GapBridge:
             v, a, sa = _ramp(ts, ds, self.p.min_history_s)
             drive = math.copysign(g.a0, v1)       # the braking's rate, the way it moves after
             if (rate := ramp_rate(self.p, a, sa)) is not None:
-                v_end, a1 = v, rate
+                v_end, a1 = v, rate           # (a few frames' rate is rough: the drive's, if seen that way)
+                seen = g.drive[0 if a * v > 0 else 1]
+                if seen and (v := _ramp_at(ts, ds, math.copysign(seen, a))) is not None:
+                    v_end, a1 = v, math.copysign(seen, a)
             elif stopped and (v := _ramp_at(ts, ds, drive)) is not None:
                 v_end, a1 = v, drive
             if stopped and v_end * v1 <= 0:       # a speed at t1 against the motion after: it stood then
