@@ -15,6 +15,7 @@ mean has seen enough frames.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import math
 from functools import lru_cache
 
 import cv2
@@ -43,6 +44,7 @@ class DenseParams:
     stop_px: float = 2.0              # a frozen frame after a believed shift this small (px a frame): a stand
     slow_px: float = 6.0              # a first believed motion this slow (px a frame) must add up: across
                                       # its frames at once the shift must be their sum (stop_px or agree)
+    slow_confirm_s: float = 0.2       # ...and go on steadily this long (what the car's pitch moves swings back)
     clipped_dn: float = 250.0         # a pixel this bright (at that level) is clipped: it shows no wall
     clipped_margin: int = 1           # ...nor its neighbours (pixels at that level), half-clipped
     clipped_fade: float = 2.0         # the wall around is faded in over this many pixels (Gaussian sigma)
@@ -113,7 +115,16 @@ class DenseShift:
             return (*found, since)
         self._last_dv = None
         self._pending.append((*found, since, before, periods))
-        recent = [shift[1] / k for shift, _, _, _, k in self._pending[-self.p.confirm:]]
+        # a slow first motion must go on for slow_confirm_s: over three frames a sine is a steady
+        # shift, and the LED's mirror point on a wet wall moves in the image as the car pitches (0.3
+        # degrees at 3 Hz: ~5 px, read as a 0.02 m/s crawl for 0.13 s where the crawler drove at 0.3,
+        # and the gap after it carried at that, an independent stress run: -9.1 %); a drive's crawl goes on
+        need = self.p.confirm
+        per = [shift[1] / k for shift, _, _, _, k in self._pending]
+        if abs(sum(per[-need:])) < self.p.slow_px * len(per[-need:]):
+            need = max(need, self._slow_frames())
+        self._pending = self._pending[-need:]
+        recent = per[-need:]
         # next to no motion with no brake seen before it is not believed either: a wall that stands
         # becomes the running mean, and a camera's frames of it flat-field to noise that does not
         # correlate. Only what stays put in the image does (the encoder's copied blocks, what is
@@ -123,8 +134,8 @@ class DenseShift:
         still = abs(sum(recent)) < self.p.stop_px * len(recent)
         du = sum(shift[0] for shift, *_ in self._pending)
         dv = sum(shift[1] for shift, *_ in self._pending)
-        if len(recent) < self.p.confirm or not self._steady(recent) or still or not self._adds_up(dv):
-            self._pending = self._pending[-(self.p.confirm - 1):]
+        if len(recent) < need or not self._steady(recent) or still or not self._adds_up(dv):
+            self._pending = self._pending[-(need - 1):]
             return None
         response = min(r for _, r, *_ in self._pending)
         start = self._pending[0][2]
@@ -145,6 +156,11 @@ class DenseShift:
         # across three frames it can be the wall's; requiring min_response read a stop run +7 -> +13 %)
         (_, dv_at_once), _ = self._correlate(self._pending[0][3], self._prev)
         return abs(dv_at_once * self._scale - dv) <= max(self.p.stop_px, self.p.agree * abs(dv))
+
+    def _slow_frames(self) -> int:
+        """Frames a slow first motion must go on steadily for: slow_confirm_s of them."""
+        period = sorted(self._intervals)[min(1, len(self._intervals) - 1)] if self._intervals else 1 / 30
+        return math.ceil(self.p.slow_confirm_s / period - 1e-6)
 
     def _periods(self, t_s: float, since) -> int:
         """How many frame periods the interval since the last frame spans (1 but across frames that
