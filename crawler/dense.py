@@ -120,11 +120,9 @@ class DenseShift:
         # degrees at 3 Hz: ~5 px, read as a 0.02 m/s crawl for 0.13 s where the crawler drove at 0.3,
         # and the gap after it carried at that, an independent stress run: -9.1 %); a drive's crawl goes on
         need = self.p.confirm
-        per = [shift[1] / k for shift, _, _, _, k in self._pending]
-        if abs(sum(per[-need:])) < self.p.slow_px * len(per[-need:]):
+        recent = [shift[1] / k for shift, _, _, _, k in self._pending]   # (all pending are steady or none)
+        if abs(sum(recent[-need:])) < self.p.slow_px * len(recent[-need:]):
             need = max(need, self._slow_frames())
-        self._pending = self._pending[-need:]
-        recent = per[-need:]
         # next to no motion with no brake seen before it is not believed either: a wall that stands
         # becomes the running mean, and a camera's frames of it flat-field to noise that does not
         # correlate. Only what stays put in the image does (the encoder's copied blocks, what is

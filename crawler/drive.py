@@ -24,7 +24,8 @@ if TYPE_CHECKING:                       # (gapmodel takes its rates from here)
 
 STILL_M_S = 0.01          # an odometer speed within this is a stand (twice a measured speed's error)
 MIN_RAMP_M_S = 0.05       # a cruise slower than this ramps too little to read a rate from
-WINDOW_S = 4.0            # a stand and a cruise further apart than this are not one ramp
+WINDOW_S = 4.0            # the frames kept for a ramp's fit
+SIDE_S = 1.0              # ...of the stand and of the cruise, at most this much next to the ramp
 KEPT = 3                  # the rates of the last few ramps of each kind; their median is the drive's
 
 
@@ -63,8 +64,9 @@ class DriveWatch:
                 kind[i] = (t, r * scale if t >= since else r)
 
     def update(self, t: float, d: float, v: float | None, continuous: bool):
-        """One measured frame: its time, published distance and the odometer's speed."""
-        if not continuous:
+        """One measured frame: its time, the odometer's distance and speed. Frames that never came
+        (a hole longer than across_s) are lost frames too."""
+        if not continuous or (self._frames and t - self._frames[-1][0] > self.p.across_s):
             self.lost()
         self._frames.append((t, d))
         while self._frames[0][0] < t - WINDOW_S:
@@ -96,33 +98,44 @@ class DriveWatch:
         return False
 
     def _learn(self, start: bool, stand: tuple, held: tuple):
-        """A ramp between a stand and a held speed (each (first, last) frame times), all measured."""
+        """A ramp between a stand and a held speed (each (first, last) frame times), all measured:
+        the SIDE_S of each next to it. Not one ramp where the two are further apart than the
+        gentlest drive ramps (a creep between: a stand, 1 s at 0.015 m/s, then a start at 0.6 read
+        0.37, a review's case), or where the ramp fits the frames worse than twice their scatter."""
+        if start:
+            stand, ramp_at = (max(stand[0], stand[1] - SIDE_S), stand[1]), stand[1]
+        else:
+            held, ramp_at = (max(held[0], held[1] - SIDE_S), held[1]), held[1]
         t = np.array([f[0] for f in self._frames])
         d = np.array([f[1] for f in self._frames])
         lo, hi = min(stand[0], held[0]), max(stand[1], held[1])
-        if t[0] > lo + 0.1 or hi - lo > WINDOW_S:
-            return
         on_stand, on_line = (t >= stand[0]) & (t <= stand[1]), (t >= held[0]) & (t <= held[1])
-        if on_stand.sum() < 3 or on_line.sum() < 3:
+        if t[0] > lo + 0.1 or on_stand.sum() < 3 or on_line.sum() < 3:
             return
         v, line = np.polyfit(t[on_line], d[on_line], 1)
+        between = held[0] - stand[1] if start else stand[0] - held[1]
+        if between > abs(v) / self.p.min_drive_accel_m_s2 + self.p.history_s:
+            return
+        level = float(np.median(d[on_stand]))
+        scatter = max(float(np.std(d[on_stand] - level)), float(np.std(d[on_line] - line - v * t[on_line])))
         span = (t >= lo) & (t <= hi)
-        rate = ramp_rate(t[span], d[span], float(np.median(d[on_stand])), float(v), float(line), start, self.p)
+        rate = ramp_rate(t[span], d[span], level, float(v), float(line), start, self.p, 2 * max(scatter, 5e-4))
         if rate is not None:
-            self._rates[start].append((held[0], rate))
+            self._rates[start].append((ramp_at, rate))
 
 
 def ramp_rate(t: np.ndarray, d: np.ndarray, level: float, v: float, line: float, start: bool,
-              p: BridgeParams) -> float | None:
+              p: BridgeParams, worst_m: float = np.inf) -> float | None:
     """The rate of a ramp at a constant rate between a stand at distance `level` and a cruise
     d = line + v t (a start: the stand before; a brake: after), fitted to the distances d at t by
-    least squares over rates from min_drive_accel_m_s2 to hard_accel_m_s2. The cruise's line
+    least squares over rates from min_drive_accel_m_s2 to twice hard_accel_m_s2. The cruise's line
     meets the stand's level at the ramp's middle whatever its rate, so the rate is the one unknown.
-    None: too slow a cruise to read, or the best rate at either end of the range (not resolved)."""
+    None: too slow a cruise to read, the best rate at either end of the range (not resolved) or
+    beyond a crawler's (hard_accel_m_s2: a jump), or a fit worse than worst_m r.m.s. (no one ramp)."""
     if abs(v) < MIN_RAMP_M_S:
         return None
     mid = (level - line) / v
-    rates = np.geomspace(p.min_drive_accel_m_s2, p.hard_accel_m_s2, 64)[:, None]
+    rates = np.geomspace(p.min_drive_accel_m_s2, 2 * p.hard_accel_m_s2, 80)[:, None]
     half = abs(v) / (2 * rates)
     sign = np.sign(v)
     if start:       # still, then up to the line
@@ -133,7 +146,7 @@ def ramp_rate(t: np.ndarray, d: np.ndarray, level: float, v: float, line: float,
         model = np.where(t > mid - half, level - sign * 0.5 * rates * left * left, line + v * t)
     sse = ((model - d) ** 2).sum(axis=1)
     best = int(np.argmin(sse))
-    if best in (0, len(sse) - 1):
+    if best in (0, len(sse) - 1) or rates[best, 0] > p.hard_accel_m_s2 * 1.2 or sse[best] > len(t) * worst_m ** 2:
         return None
     lo, mid_, hi = sse[best - 1:best + 2]       # the parabola's vertex through the three, in log rate
     curve = lo - 2 * mid_ + hi

@@ -93,7 +93,10 @@ class GapBridge:
         g, at, restart = (self._gap, self._blind_at, self._restarted) if self._settling is None else (None,) * 3
         if g is not None and at is not None:      # where the crawler was at the reset is the model's guess
             guess_var = self._model_var(g, at[0])[1]
+        drive = self.drive                        # (the crawler's drive is the same one)
         self.__init__(self.p, distance_m)
+        self.drive = drive
+        drive.lost()
         self.offset_m = 0.0 if vision_m is None else distance_m - vision_m
         if g is not None and at is not None:
             self.var_gaps = guess_var             # (a phantom set-off before it: -437 mm at 0.8 sigma, not 3.5)
@@ -329,7 +332,7 @@ class GapBridge:
             if (rate := ramp_rate(self.p, a, sa)) is not None:
                 v_end, a1 = v, rate           # (a few frames' rate is rough: the drive's, if seen that way)
                 seen = g.drive[0 if a * v > 0 else 1]
-                if seen and (v := _ramp_at(ts, ds, math.copysign(seen, a))) is not None:
+                if seen and seen / 3 <= abs(rate) <= 1.25 * seen and (v := _ramp_at(ts, ds, math.copysign(seen, a))) is not None:
                     v_end, a1 = v, math.copysign(seen, a)
             elif stopped and (v := _ramp_at(ts, ds, drive)) is not None:
                 v_end, a1 = v, drive

@@ -938,15 +938,15 @@ def test_a_crawler_standing_as_the_gap_opens_sets_off_to_its_cruise_whatever_its
     assert g.resumed[1] == 0.2 and travel(p, g, model_time(g, 6.0)[0]) == pytest.approx(0.75, abs=0.05)
 
 
-def _stop_and_go_at(rate):
+def _stop_and_go_at(rate, last_brake=None, brake_at=6.0):
     """Stands to 1 s, sets off at `rate` to 0.3 m/s, brakes at 2.5 s, stands 1 s, sets off at 4 s,
-    brakes at 6 s, stands from 6.5 to 7.5 s and sets off again: the true distance at t."""
-    ramp, edges = 0.3 / rate, [(1.0, 1), (2.5, -1), (4.0, 1), (6.0, -1), (7.5, 1)]
+    brakes at brake_at (at last_brake, if given), stands to 7.5 s and sets off again: the distance."""
+    edges = [(1.0, 1, rate), (2.5, -1, rate), (4.0, 1, rate), (brake_at, -1, last_brake or rate), (7.5, 1, rate)]
 
     def speed(t):
         v = 0.0
-        for at, way in edges:
-            v += way * min(max(t - at, 0.0), ramp) * rate
+        for at, way, a in edges:
+            v += way * min(max(t - at, 0.0), 0.3 / a) * a
         return v
 
     ts = np.arange(0.0, 10.0, 1e-3)
@@ -978,11 +978,11 @@ def test_the_brakes_and_starts_a_gap_hides_are_taken_at_the_rate_the_drive_was_s
     assert abs(err) <= 2 * out.sigma_m
 
 
-def _measured_again_braking(rates, wobble_m, phase):
+def _measured_again_braking(rates, wobble_m, phase, brake=0.4, brake_at=6.0):
     """A crawler whose drive ramps at 0.4 m/s^2 (seen whole before), blind from 5 to 6.4 s while
-    it cruises and, from 6 s, brakes; measured again afresh at 0.14 m/s, still braking, its distances
-    wobbling by wobble_m at 3 Hz (the car's pitch). The error at 7 s, settled."""
-    truth, bridge = _stop_and_go_at(0.4), GapBridge()
+    it cruises and, from 6 s, brakes (at `brake`); measured again afresh still braking (at 0.14 m/s),
+    its distances wobbling by wobble_m at 3 Hz (the car's pitch). The error at 7 s, settled."""
+    truth, bridge = _stop_and_go_at(0.4, brake, brake_at), GapBridge()
     if rates is not None:
         bridge.drive.rates = lambda: rates
     vision, last, was_blind = 0.0, 0.0, False
@@ -1011,6 +1011,14 @@ def test_a_ramp_seen_after_a_gap_is_read_at_the_drive_s_rate():
     unseen = np.mean([abs(_measured_again_braking((None, None), 5e-4, ph)) for ph in phases])
     assert seen < 0.006 and seen < 0.5 * unseen
     assert abs(_measured_again_braking(None, 0.0, 0.0)) < 0.003
+
+
+def test_a_brake_after_a_gap_fitted_harder_than_the_drive_s_is_read_at_its_own_rate():
+    """An operator may brake harder than the drive's ramp: a brake at 1.0 m/s^2 seen after the gap
+    (from 6.2 s), fitted at 1.0, was read at the drive's 0.4 (-52 mm, a review). A fit up to a quarter
+    harder than the drive's, or down to a third of it (a few frames blur a ramp weaker), is the drive's."""
+    hard = [_measured_again_braking(rates, 0.0, 0.0, brake=1.0, brake_at=6.2) for rates in (None, (None, None))]
+    assert abs(hard[0]) < 0.03 and abs(hard[0]) <= abs(hard[1]) + 1e-3      # (-22 mm: the fit's own)
 
 
 @pytest.mark.parametrize("fresh", [True, False])
