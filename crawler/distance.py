@@ -59,7 +59,8 @@ class DistanceChain:
             self.fusion.set_distance(distance_m, vision_m=vision_m)
 
     def state(self) -> dict:
-        out = {"sigma_m": math.hypot(self.bridge.sigma_m, self.codec.sigma_m)}   # a restart carries both
+        out = {"sigma_m": math.hypot(self.bridge.sigma_m, self.codec.sigma_m),   # a restart carries both
+               "drive": self.bridge.drive.to_dict()}                              # ...and the drive's rates
         if self.fusion is not None:
             out["wheel"] = self.fusion.to_dict()
         return out

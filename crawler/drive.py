@@ -13,6 +13,7 @@ sigma) is not narrowed by it: an operator may still brake harder than the drive'
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from typing import TYPE_CHECKING
 
@@ -48,6 +49,25 @@ class DriveWatch:
         """(start, brake): the median rate of the last ramps seen of each kind (None: none seen)."""
         return tuple(float(np.median([r for _, r in self._rates[k]])) if self._rates[k] else None
                      for k in (True, False))
+
+    def to_dict(self) -> dict:
+        """What a restarted daemon keeps (the checkpoint): the rates, not the frames."""
+        start, brake = self.rates()
+        return {"start_m_s2": start, "brake_m_s2": brake}
+
+    def restore(self, saved: dict):
+        """The rates a checkpoint kept (to_dict's); ValueError naming the bad value, rates unchanged."""
+        kept = {}
+        for key, start in (("start_m_s2", True), ("brake_m_s2", False)):
+            r = saved.get(key) if isinstance(saved, dict) else saved
+            if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r)
+                                  or not 0 < r <= 2 * self.p.hard_accel_m_s2):
+                raise ValueError(f"drive {key} = {r!r} is no drive's rate (0 to {2 * self.p.hard_accel_m_s2} m/s^2)")
+            kept[start] = r
+        for start, r in kept.items():
+            self._rates[start].clear()
+            if r is not None:
+                self._rates[start].append((-math.inf, float(r)))
 
     def lost(self):
         """A frame not measured: no ramp is read across it (the cruise held is the odometer's

@@ -157,6 +157,11 @@ class Service:
         resume = resume or {}
         bridge = GapBridge(bridge_params(self.settings, self.odometer), distance_m=resume.get("distance_m", 0.0),
                            sigma_m=resume.get("sigma_m") or 0.0)
+        if resume.get("drive") is not None:
+            try:
+                bridge.drive.restore(resume["drive"])
+            except ValueError as exc:
+                _log.error("the checkpoint's %s; the drive's rates are learnt afresh", exc)
         codec = CodecBias(self.odometer.m_per_px)
         w = self.settings.wheel
         if not w.enabled:

@@ -126,3 +126,34 @@ def test_an_operator_s_reset_keeps_what_the_drive_was_seen_to_do():
     seen = bridge.drive.rates()
     bridge.reset(0.0)
     assert seen[0] == pytest.approx(0.6, rel=0.05) and bridge.drive.rates() == seen
+
+
+def _service_chain(resume):
+    """crawlerd's own composition of the distance chain, resumed from a checkpoint's state."""
+    from types import SimpleNamespace
+
+    from crawler import settings
+    from crawler.service import Service
+
+    odometer = SimpleNamespace(m_per_px=1e-4, camera=SimpleNamespace(fy=500.0))
+    return Service._chain(SimpleNamespace(settings=settings.load(None, []), odometer=odometer), resume)
+
+
+def test_a_restarted_daemon_keeps_the_drive_s_rates_and_refuses_a_bad_one(caplog):
+    """The checkpoint carries the rates (not the frames): a restart does not forget how this drive
+    ramps. A saved rate that is no drive's (NaN, negative, text) is named in the log and the rates
+    are learnt afresh; the rest of the checkpoint stands."""
+    import json
+
+    truth, end = stop_and_go(0.6, 0.4)
+    chain = _service_chain(None)
+    w = watch(truth, end)
+    chain.bridge.drive.restore(w.to_dict())
+    saved = json.loads(json.dumps(chain.state()))              # as the checkpoint writes it
+    assert saved["drive"]["start_m_s2"] == pytest.approx(0.6, rel=0.12)
+    assert _service_chain(saved).bridge.drive.rates() == chain.bridge.drive.rates()
+    for bad in (float("nan"), -0.5, "fast", True, 50.0):
+        caplog.clear()
+        resumed = _service_chain(dict(saved, drive={"start_m_s2": bad, "brake_m_s2": 0.4}))
+        assert resumed.bridge.drive.rates() == (None, None)
+        assert "start_m_s2" in caplog.text and "learnt afresh" in caplog.text
