@@ -39,8 +39,8 @@ def validate(data) -> dict:
     if not isinstance(data, dict):
         raise CorruptCheckpoint("not a JSON object")
     d = data.get("distance_m")
-    if isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d) or abs(d) > MAX_DISTANCE_M:
-        raise CorruptCheckpoint(f"distance_m = {d!r} is not a finite distance")
+    if not _finite(d) or abs(d) > MAX_DISTANCE_M:
+        raise CorruptCheckpoint(f"distance_m = {repr(d)[:40]} is not a finite distance")
     run_id = data.get("run_id")
     if not isinstance(run_id, str) or not RUN_ID.match(run_id):
         raise CorruptCheckpoint(f"run_id = {run_id!r} is not a run id")
@@ -59,7 +59,12 @@ def validate(data) -> dict:
 
 
 def _finite(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    if not isinstance(v, (int, float)) or isinstance(v, bool):
+        return False
+    try:
+        return math.isfinite(v)
+    except OverflowError:         # an integer beyond any float (JSON allows one)
+        return False
 
 
 class Checkpoint:

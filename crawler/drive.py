@@ -28,6 +28,7 @@ MIN_RAMP_M_S = 0.05       # a cruise slower than this ramps too little to read a
 WINDOW_S = 4.0            # the frames kept for a ramp's fit
 SIDE_S = 1.0              # ...of the stand and of the cruise, at most this much next to the ramp
 KEPT = 3                  # the rates of the last few ramps of each kind; their median is the drive's
+HARDEST = 1.2             # a rate beyond this share of hard_accel_m_s2 is no drive's (a jump in the distances)
 
 
 class DriveWatch:
@@ -43,6 +44,8 @@ class DriveWatch:
         self._still = None                  # (first, last) frame times of the stand going on
         self._stood = None                  # (first, last) of the last stand held, not yet set off from
         self._frames: deque = deque()       # (t, distance) measured in a row, the last WINDOW_S
+        self._period = None                 # the interval between the last two frames measured in a row
+        self._first_t = None                # the first frame's time (rates restored belong to its epoch)
         self._rates = {True: deque(maxlen=KEPT), False: deque(maxlen=KEPT)}   # start, brake: (t, rate)
 
     def rates(self) -> tuple:
@@ -57,12 +60,17 @@ class DriveWatch:
 
     def restore(self, saved: dict):
         """The rates a checkpoint kept (to_dict's); ValueError naming the bad value, rates unchanged."""
-        kept = {}
+        if not isinstance(saved, dict):
+            raise ValueError(f"drive = {saved!r} is not a table of rates")
+        kept, top = {}, HARDEST * self.p.hard_accel_m_s2
         for key, start in (("start_m_s2", True), ("brake_m_s2", False)):
-            r = saved.get(key) if isinstance(saved, dict) else saved
-            if r is not None and (isinstance(r, bool) or not isinstance(r, (int, float)) or not math.isfinite(r)
-                                  or not 0 < r <= 2 * self.p.hard_accel_m_s2):
-                raise ValueError(f"drive {key} = {r!r} is no drive's rate (0 to {2 * self.p.hard_accel_m_s2} m/s^2)")
+            r = saved.get(key)
+            try:
+                ok = r is None or (not isinstance(r, bool) and isinstance(r, (int, float)) and 0 < float(r) <= top)
+            except OverflowError:                 # an integer beyond any float
+                ok = False
+            if not ok:
+                raise ValueError(f"drive {key} = {r!r} is no drive's rate (0 to {top:g} m/s^2)")
             kept[start] = r
         for start, r in kept.items():
             self._rates[start].clear()
@@ -81,13 +89,20 @@ class DriveWatch:
             self.cruise, self._since = (self.cruise[0], self.cruise[1] * scale), None
         for kind in self._rates.values():
             for i, (t, r) in enumerate(kind):
-                kind[i] = (t, r * scale if t >= since else r)
+                at = t if t > -math.inf else self._first_t      # (restored: the resumed run's first epoch)
+                kind[i] = (t, r * scale if at is not None and at >= since else r)
 
     def update(self, t: float, d: float, v: float | None, continuous: bool):
         """One measured frame: its time, the odometer's distance and speed. Frames that never came
-        (a hole longer than across_s) are lost frames too."""
-        if not continuous or (self._frames and t - self._frames[-1][0] > self.p.across_s):
+        (a hole longer than across_s and than one and a half frame periods) are lost frames too."""
+        hole = False
+        if self._frames:
+            dt = t - self._frames[-1][0]
+            hole = dt > self.p.across_s + 1e-6 and (self._period is None or dt > 1.5 * self._period)
+            self._period = dt
+        if not continuous or hole:
             self.lost()
+        self._first_t = t if self._first_t is None else self._first_t
         self._frames.append((t, d))
         while self._frames[0][0] < t - WINDOW_S:
             self._frames.popleft()
@@ -166,7 +181,7 @@ def ramp_rate(t: np.ndarray, d: np.ndarray, level: float, v: float, line: float,
         model = np.where(t > mid - half, level - sign * 0.5 * rates * left * left, line + v * t)
     sse = ((model - d) ** 2).sum(axis=1)
     best = int(np.argmin(sse))
-    if best in (0, len(sse) - 1) or rates[best, 0] > p.hard_accel_m_s2 * 1.2 or sse[best] > len(t) * worst_m ** 2:
+    if best in (0, len(sse) - 1) or rates[best, 0] > HARDEST * p.hard_accel_m_s2 or sse[best] > len(t) * worst_m ** 2:
         return None
     lo, mid_, hi = sse[best - 1:best + 2]       # the parabola's vertex through the three, in log rate
     curve = lo - 2 * mid_ + hi

@@ -152,8 +152,24 @@ def test_a_restarted_daemon_keeps_the_drive_s_rates_and_refuses_a_bad_one(caplog
     saved = json.loads(json.dumps(chain.state()))              # as the checkpoint writes it
     assert saved["drive"]["start_m_s2"] == pytest.approx(0.6, rel=0.12)
     assert _service_chain(saved).bridge.drive.rates() == chain.bridge.drive.rates()
-    for bad in (float("nan"), -0.5, "fast", True, 50.0):
+    for bad in (float("nan"), -0.5, "fast", True, 5.5, 10 ** 400):    # (5.5: beyond 1.2 x a crawler's hardest)
         caplog.clear()
         resumed = _service_chain(dict(saved, drive={"start_m_s2": bad, "brake_m_s2": 0.4}))
         assert resumed.bridge.drive.rates() == (None, None)
         assert "start_m_s2" in caplog.text and "learnt afresh" in caplog.text
+    caplog.clear()
+    assert _service_chain(dict(saved, drive=0.5)).bridge.drive.rates() == (None, None)   # not a table
+    assert "not a table of rates" in caplog.text
+
+
+def test_a_low_frame_rate_is_no_hole_in_the_frames():
+    """At 6 fps every interval is longer than across_s: taken for frames that never came, no ramp
+    was ever read (a review). A hole is longer than one and a half frame periods too."""
+    global FPS
+    truth, end = stop_and_go(0.6, 0.4, stand_s=2.0, cruise_s=3.0)
+    keep, FPS = FPS, 6.0
+    try:
+        start, brake = watch(truth, end, noise_m=0.0005).rates()
+    finally:
+        FPS = keep
+    assert start == pytest.approx(0.6, rel=0.2) and brake == pytest.approx(0.4, rel=0.2)

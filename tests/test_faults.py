@@ -210,6 +210,7 @@ def test_implausible_rates_still_images_and_blank_videos_are_refused(render_run,
     ('{"distance_m": 12.34, "run_id": "abc123def456", "fra', "Unterminated string", "(12.34 m)"),
     ('{"distance_m": 3.5, "run_id": "../../etc", "frames": 9}', "is not a run id", "(3.5 m)"),
     ('{"distance_m": true, "run_id": "abc123def456", "frames": 9}', "True is not a finite", "its distance"),
+    ('{"distance_m": 1' + '0' * 400 + ', "run_id": "abc123def456", "frames": 9}', "is not a finite", "0 m)"),  # no float
 ])
 def test_a_checkpoint_that_is_not_valid_is_set_aside_naming_the_distance_lost(tmp_path, caplog, text, why, lost):
     from crawler.checkpoint import Checkpoint
