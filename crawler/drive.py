@@ -203,6 +203,14 @@ def seen_rate(g: Gap, start: bool = True) -> float | None:
     return seen[0] if seen else None
 
 
+def blurred(seen: float | None, fitted: float) -> bool:
+    """Is a rate fitted over the few frames after a gap this drive's ramp (`seen`, of that kind),
+    read rough? Those frames move with the car's pitch, and a fit over a ramp's end blurs it weaker:
+    down to a third of it, or a quarter harder. A fit harder than that is an operator braking
+    harder than the drive's ramp (read at the drive's, a brake at 1.0 m/s^2 lost 52 mm)."""
+    return bool(seen) and seen / 3 <= abs(fitted) <= 1.25 * seen
+
+
 def edge_time(p: BridgeParams, v: float, g: Gap, start: bool = True) -> float:
     """Half the time a start to v (or a brake from it) takes at the drive's rate: what it covers."""
     return abs(v) / (2 * drive_rate(p, g, start))

@@ -29,7 +29,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from .drive import DriveWatch, drive_rate
+from .drive import DriveWatch, blurred, drive_rate
 from .framenoise import FrameNoise
 from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, rate_range_var, rejoin,
                        see_stand, set_off, settled_travel, stand_state, standing, start_rate_seen, stops, travel,
@@ -332,7 +332,7 @@ class GapBridge:
             if (rate := ramp_rate(self.p, a, sa)) is not None:
                 v_end, a1 = v, rate           # (a few frames' rate is rough: the drive's, if seen that way)
                 seen = g.drive[0 if a * v > 0 else 1]
-                if seen and seen / 3 <= abs(rate) <= 1.25 * seen and (v := _ramp_at(ts, ds, math.copysign(seen, a))) is not None:
+                if blurred(seen, rate) and (v := _ramp_at(ts, ds, math.copysign(seen, a))) is not None:
                     v_end, a1 = v, math.copysign(seen, a)
             elif stopped and (v := _ramp_at(ts, ds, drive)) is not None:
                 v_end, a1 = v, drive
