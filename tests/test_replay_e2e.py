@@ -68,6 +68,9 @@ def test_reverse_and_stop_and_go(render_run, crawlerd, tmp_path):
     run = render_run("stopgo", profile="stopgo", speed_m_s=0.3, duration_s=4.0)
     rc, s, _ = crawlerd("--replay", run["h264"])
     assert rc == 0 and err_pct(s, run["truth"]) < 0.3
+    accel = run["truth"]["config"]["accel_m_s2"]
+    seen = [r for r in s["drive"].values() if r is not None]           # the ramps the gap model would take
+    assert seen and all(abs(r - accel) < 0.15 * accel for r in seen), s["drive"]
 
 
 def test_a_crawler_that_reverses_inside_a_blackout_is_tracked_again_when_the_light_returns(
