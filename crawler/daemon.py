@@ -319,10 +319,9 @@ class Daemon:
         if codec.qp is not None:       # a compressed recording: what its quantiser added to sigma
             out["codec"] = {"mean_qp": round(codec.qp, 2), "keyframes": codec.keyframes,
                             "sigma_m": round(codec.sigma_m, 6)}
-        start, brake = self.chain.bridge.drive.rates()
-        if start is not None or brake is not None:     # the rates the gap model takes for what it hides
-            out["drive"] = {"start_m_s2": None if start is None else round(start, 3),
-                            "brake_m_s2": None if brake is None else round(brake, 3)}
+        drive = self.chain.bridge.drive.to_dict()      # the rates the gap model takes for what it hides
+        if any(r is not None for r in drive.values()):
+            out["drive"] = {k: None if r is None else round(r, 3) for k, r in drive.items()}
         for output in self.outputs:
             output.summarize(out)
         return out

@@ -14,8 +14,8 @@ mean has seen enough frames.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 import math
+from dataclasses import dataclass
 from functools import lru_cache
 
 import cv2
@@ -159,8 +159,12 @@ class DenseShift:
 
     def _slow_frames(self) -> int:
         """Frames a slow first motion must go on steadily for: slow_confirm_s of them."""
-        period = sorted(self._intervals)[min(1, len(self._intervals) - 1)] if self._intervals else 1 / 30
-        return math.ceil(self.p.slow_confirm_s / period - 1e-6)
+        return math.ceil(self.p.slow_confirm_s / (self._period() or 1 / 30) - 1e-6)
+
+    def _period(self) -> float | None:
+        """The frame period: the second shortest of the last nine intervals (one odd timestamp is
+        no period; drops only lengthen intervals). None before any."""
+        return sorted(self._intervals)[min(1, len(self._intervals) - 1)] if self._intervals else None
 
     def _periods(self, t_s: float, since) -> int:
         """How many frame periods the interval since the last frame spans (1 but across frames that
@@ -174,9 +178,7 @@ class DenseShift:
         if self._intervals is None:
             self._intervals = []
         self._intervals = (self._intervals + [dt])[-9:]
-        # the frame period: the second shortest of the last nine (one odd timestamp is no period)
-        period = sorted(self._intervals)[min(1, len(self._intervals) - 1)]
-        return max(1, round(dt / period))
+        return max(1, round(dt / self._period()))
 
     def _steady(self, dvs) -> bool:
         """Do these frame-to-frame shifts go on as a crawler's drive does: each the mean of its
