@@ -133,7 +133,7 @@ class VideoReplay:
         first = None
         last = float("-inf")
         anew = False                # an I-frame since the last frame handed on (a paced one may skip it)
-        for k, frame in self._decoded():
+        for k, frame, intra in self._decoded():
             t = self._time_of(frame, k)
             if first is None:
                 first = t
@@ -141,7 +141,7 @@ class VideoReplay:
             if t <= last:
                 raise VideoError(f"{self.path.name}: frame {k} time {t:.6f} s does not increase "
                                  f"({self.timing})")
-            last, anew = t, anew or _intra(frame)
+            last, anew = t, anew or intra
             if self.pacer is not None and not self.pacer.due(t - first):
                 self.frames_dropped += 1
                 continue
@@ -152,8 +152,8 @@ class VideoReplay:
         self._report_losses()
 
     def _decoded(self):
-        """(index in the stream, frame) of every frame that decodes; a damaged packet is counted and
-        skipped, not the end of the stream. A frame the decoder could only conceal (it flags it corrupt)
+        """(index in the stream, frame, an I-frame: coded anew, not from the frames before it) of
+        every frame that decodes; a damaged packet is counted and skipped, not the end of the stream. A frame the decoder could only conceal (it flags it corrupt)
         is counted too: it is measured, but what it shows is partly the decoder's guess.
 
         Raw streams carry no timestamps, so each packet is stamped with its index: a frame that comes
@@ -169,6 +169,7 @@ class VideoReplay:
         sent = out = failed = damaged = 0
         reorders = False            # B-frames: frames leave the decoder out of packet order
         prev = -1
+        kinds = av.video.frame.PictureType
         for packet in self._container.demux(stream):
             if packet.size:
                 if raw:
@@ -183,7 +184,7 @@ class VideoReplay:
                                      "is it a video recording (H.264, MP4, MKV)?") from None
                 continue
             for frame in decoded:
-                reorders = reorders or frame.pict_type == av.video.frame.PictureType.B
+                reorders = reorders or frame.pict_type == kinds.B
                 if raw and not reorders:
                     if frame.pts <= prev:       # a damaged stream repeated a picture: not a new frame
                         continue
@@ -191,7 +192,7 @@ class VideoReplay:
                 else:
                     k = out
                 damaged += bool(getattr(frame, "is_corrupt", False))      # the decoder flags it
-                yield k, frame
+                yield k, frame, frame.pict_type == kinds.I
                 out += 1
         self.frames_total, self.frames_lost = max(sent, out), max(sent, out) - out
         self.frames_damaged = damaged
@@ -256,12 +257,6 @@ class VideoReplay:
 ENC_PARAMS = 19                   # AV_FRAME_DATA_VIDEO_ENC_PARAMS (FFmpeg >= 4.4)
 ENC_PARAMS_H264 = 1               # AV_VIDEO_ENC_PARAMS_H264: QP on H.264's scale (VP9's and MPEG-2's differ)
 _ENC_HEAD = struct.Struct("@INNii")  # AVVideoEncParams: nb_blocks, blocks_offset, block_size, type, qp
-
-
-def _intra(frame) -> bool:
-    """An I-frame: coded anew, not from the frames before it."""
-    import av
-    return frame.pict_type == av.video.frame.PictureType.I
 
 
 def _mean_qp(frame) -> float | None:
