@@ -134,17 +134,14 @@ def serve(conn, ring: SharedRing, view, params, close=(), initializer=None, numb
 
 @dataclass
 class _Entry:
-    """A frame in flight: where it lies, and the request that tracks it."""
+    """A frame in flight: the frame (its grey plane the ring's slot), and the request that tracks it."""
 
-    index: int
-    t_s: float
+    frame: Frame
     slot: int
     gen: int = -1               # the keyframe generation it was sent with (-1: not sent)
     seq: int = -1
     worker: int = -1
     used: bool = False
-    qp: float | None = None     # the frame's own (ports.Frame)
-    intra: bool = False
 
 
 class _Worker:
@@ -254,21 +251,21 @@ class TrackerPool:
         entry = self._pending.popleft()
         self._current = entry
         try:
-            img = self.ring.frames[entry.slot]
-            est = self.odometer.update(img, entry.t_s, entry.intra)
+            frame = entry.frame
+            est = self.odometer.update(frame.gray, frame.t_s, frame.intra)
         finally:
             self._current = None
         self._ready.pop(entry.seq, None)        # measured without its worker's tracks (no texture)
         self._sync()
         try:
-            yield Frame(entry.index, entry.t_s, img, entry.qp, entry.intra), est
+            yield frame, est
         finally:
             self._free.append(entry.slot)
 
     def _admit(self, frame) -> _Entry:
         slot = self._free.pop()
         np.copyto(self.ring.frames[slot], frame.gray)      # the camera's buffer goes back at once
-        entry = _Entry(frame.index, frame.t_s, slot, qp=frame.qp, intra=frame.intra)
+        entry = _Entry(Frame(frame.index, frame.t_s, self.ring.frames[slot], frame.qp, frame.intra), slot)
         self._sync()
         self._send(entry)
         return entry
@@ -297,7 +294,7 @@ class TrackerPool:
         self._next = w.number + 1
         self._drain(w)
         self._seq += 1
-        step, lat = self.odometer.guess(entry.t_s)
+        step, lat = self.odometer.guess(entry.frame.t_s)
         try:
             w.conn.send_bytes(REQUEST.pack(self._seq, self._gen, entry.slot, step, lat))
         except OSError:
