@@ -82,10 +82,10 @@ def host(frames, workers_list, truth_m):
 
 def arm(frames, h264: Path, workers_list, n1: int, n2: int):
     import arm_yardstick as ay
-    from throughput import _save_frames
+    from throughput import save_frames
 
     with tempfile.TemporaryDirectory() as tmp:
-        _save_frames(Path(tmp), frames[:n2])
+        save_frames(Path(tmp), frames[:n2])
         for w in [1, *workers_list]:
             runs = [ay.run(["benchmarks/cores.py", "--_arm", tmp, str(n), str(w)]) for n in (n1, n2)]
             print_arm(w, runs, n2 - n1)
@@ -150,7 +150,7 @@ def _arm(tmp, n, workers):
     import cv2
 
     import arm_yardstick
-    from throughput import _load_frames
+    from throughput import load_frames
 
     from crawler import workers as W
     from crawler.odometry import Odometer
@@ -160,7 +160,7 @@ def _arm(tmp, n, workers):
     st.wrap(Odometer, "update", 1)
     for name in ("_admit", "_sync", "_collect"):
         st.wrap(W.TrackerPool, name, 2)
-    data = _load_frames(tmp)[:int(n)]
+    data = load_frames(tmp)[:int(n)]
     d, counts, _ = run(data, int(workers), stages=st)
     print(json.dumps({"distance_m": d[-1], "counts": counts}))
 

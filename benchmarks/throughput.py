@@ -164,7 +164,7 @@ def count_instructions(args, window, h264, n_frames):
         return _callgrind_runs(args, window, tmp, n_frames)
 
 
-def _save_frames(tmp: Path, frames):
+def save_frames(tmp: Path, frames):
     """(grey, time, I-frame) of each decoded frame, as the guest or valgrind's run loads them."""
     import numpy as np
 
@@ -173,8 +173,8 @@ def _save_frames(tmp: Path, frames):
     np.save(tmp / "intra.npy", np.array([k for _, _, k in frames], dtype=bool))
 
 
-def _load_frames(tmp) -> list:
-    """_save_frames' (grey, time, I-frame) of each frame, back."""
+def load_frames(tmp) -> list:
+    """save_frames' (grey, time, I-frame) of each frame, back."""
     import numpy as np
 
     frames, times, intra = (np.load(Path(tmp) / f"{name}.npy") for name in ("frames", "times", "intra"))
@@ -201,7 +201,7 @@ def _count(tmp, n, window, argd):
     import cv2
 
     cv2.setNumThreads(1)
-    frames = _load_frames(tmp)
+    frames = load_frames(tmp)
     opts = json.loads(argd)
     odo = build(json.loads(window), params_from(argparse.Namespace(**opts)), opts.get("pose", "off"))
     for i in range(int(n)):
@@ -231,7 +231,7 @@ def preload(h264: Path, tmp: Path, window) -> int:
 
     with VideoReplay(h264, build(window, None).camera) as src:
         frames = [(f.gray.copy(), f.t_s, f.intra) for f in src.frames()]
-    _save_frames(tmp, frames)
+    save_frames(tmp, frames)
     return len(frames)
 
 
@@ -343,7 +343,7 @@ def _arm(tmp, n, window, argd, marks):
     import cv2
 
     cv2.setNumThreads(1)
-    frames = _load_frames(tmp)
+    frames = load_frames(tmp)
     opts = json.loads(argd)
     odo = build(json.loads(window), params_from(argparse.Namespace(**opts)), opts.get("pose", "off"))
     st = _mark_stages() if marks == "1" else None
