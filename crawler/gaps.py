@@ -285,9 +285,7 @@ class GapBridge:
             g.across = True           # measured across: the step stands unless the speed after says no
             self._settling = (est.t_s, [(est.t_s, est.distance_m)])
         elif est.continuous and restarted is None:   # measured across the gap: the odometer's distance
-            self._gap = None          # has it all, the offset stays (less what came before a reset in it)
-            self.var_meas, self.offset_m = self.var_meas + self.p.step_floor_m ** 2, self.offset_m - g.before_reset_m
-            self._carry(g.t0, g.t0, -g.before_reset_m)     # (in the epoch's metres: it scales with them)
+            self._keep_across(g)      # has it all
         elif est.continuous and g.v0 is not None:
             # measured since a fresh start inside the gap (the offset was set then): up to that
             # start the gap is the model's, at the speed before it, and so is its uncertainty
@@ -378,12 +376,16 @@ class GapBridge:
         p = self.p
         return could_go(d1 + self.offset_m - g.d0, g.v0, v1, T, p.max_accel_m_s2, p.across_speed_m_s)
 
-    def _keep_across(self, g: Gap, d1: float):
-        """The step measured across the gap (to the odometer's d1) stands: as measured, with a
-        keyframe step's scale error (the gap's close had started the next step at d1)."""
+    def _keep_across(self, g: Gap, d1: float | None = None):
+        """The step measured across the gap stands: as measured; the offset stays, less what came
+        before a reset in it (in the epoch's metres: it scales with them). d1: the odometer's
+        distance a long gap's step ended at, as the gap's close started the next step there: a
+        keyframe step's scale error over it too (a short gap's is in its keyframe step's own)."""
         self._gap = None
-        self.var_meas += self.p.step_floor_m ** 2 + (self.p.scale_sigma * (d1 - g.vis0)) ** 2
-        self._carry(g.t0, g.t0, 0.0)
+        scaled = 0.0 if d1 is None else self.p.scale_sigma * (d1 - g.vis0)
+        self.var_meas += self.p.step_floor_m ** 2 + scaled ** 2
+        self.offset_m -= g.before_reset_m
+        self._carry(g.t0, g.t0, -g.before_reset_m)
 
     def _carry(self, t0: float, t1: float, metres: float):
         self._carried.append([t0, t1, metres])
