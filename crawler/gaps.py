@@ -29,14 +29,14 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
-from .drive import DriveWatch, blurred, drive_rate
+from .drive import DriveWatch, drive_rate
 from .framenoise import FrameNoise
 from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, rate_range_var, rejoin,
                        see_stand, set_off, settled_travel, stand_state, standing, start_rate_seen, stops, travel,
                        travel_to)
-from .motionfit import TIME_EPS, could_go, motion_before, ramp_rate
-from .motionfit import is_rescale as _is_rescale, ramp as _ramp, ramp_at as _ramp_at, remeasured as _remeasured
-from .motionfit import slope as _slope
+from .gapends import motion_before, speed_after
+from .motionfit import TIME_EPS, could_go
+from .motionfit import is_rescale as _is_rescale, remeasured as _remeasured
 
 
 @dataclass
@@ -312,30 +312,8 @@ class GapBridge:
         reopen it: it goes on from where it began."""
         g, (t1, samples) = self._gap, self._settling
         self._settling = None
-        # the speed after must have been measured for min_history_s: with no speed before it settles
-        # all of the gap alone, and the first frames seen again are the least sure (the wall half wet
-        # or half lit): one frame interval's reading, times a gap of seconds over it, is anything
-        span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
-        enough = span >= self.p.min_history_s - TIME_EPS
-        v1 = _slope([t for t, _ in samples], [d for _, d in samples]) if enough else None
-        (T, stands_var), v_end, a1 = model_time(g, t1), v1, 0.0
-        stopped = v1 is not None and stops(g, T, v1, self.p.hard_accel_m_s2) is not None
-        if v1 is not None and len(samples) >= 5 and span >= 0.5 * self.p.history_s:
-            # speeding up or slowing down since it was seen again: the speed at the gap's end, and
-            # the rate (a crawler still speeding up started not long before). After a stop inside
-            # the gap, a ramp too short for its rate is read at the braking's rate (the drive's)
-            ts, ds = [t - t1 for t, _ in samples], [d for _, d in samples]
-            v, a, sa = _ramp(ts, ds, self.p.min_history_s)
-            drive = math.copysign(g.a0, v1)       # the braking's rate, the way it moves after
-            if (rate := ramp_rate(self.p, a, sa)) is not None:
-                v_end, a1 = v, rate           # (a few frames' rate is rough: the drive's, if seen that way)
-                seen = g.drive[0 if a * v > 0 else 1]
-                if blurred(seen, rate) and (v := _ramp_at(ts, ds, math.copysign(seen, a))) is not None:
-                    v_end, a1 = v, math.copysign(seen, a)
-            elif stopped and (v := _ramp_at(ts, ds, drive)) is not None:
-                v_end, a1 = v, drive
-            if stopped and v_end * v1 <= 0:       # a speed at t1 against the motion after: it stood then
-                v_end, a1 = 0.0, 0.0
+        T, stands_var = model_time(g, t1)
+        v1, v_end, a1, _ = speed_after(self.p, g, t1, samples, T, self.noise.pose_var)
         if v1 is None and g.across:   # measured across, and lost again too soon to check: it stands
             self._keep_across(g, samples[0][1])
             return

@@ -1,8 +1,7 @@
 """Fits of a crawler's motion to a few dozen measured distances, for the gap bridge (gaps.py). Pure.
 
 A crawler's drive ramps at a constant rate and then cruises: `ramp` fits that, with where the ramp
-ends found by least squares, and says how sure its rate is; `slope` is the plain speed;
-`motion_before` reads the speed and rate a gap opens at from the frames measured before it.
+ends found by least squares, and says how sure its rate is; `slope` is the plain speed.
 """
 
 from __future__ import annotations
@@ -109,44 +108,6 @@ def is_rescale(gain_m: float, over_m: float) -> bool:
     return over_m != 0.0 and abs(gain_m) <= MAX_RESCALE * abs(over_m)
 
 
-def motion_before(p, hist, t0: float, settled_v=None, remeasured_at=None):
-    """(speed, acceleration, its 1-sigma error[, the rate of a crawler speeding up[, how far the speed
-    may be from the speed at t0]]) at t0 from the
-    measured (t, distance) samples hist (speed None: never measured). p: the bridge's parameters
-    (gapmodel.BridgeParams); settled_v: (t, speed) of the last gap settled; remeasured_at: when the
-    odometer last measured its steps again at a new tilt."""
-    def short(h):
-        return len(h) < 2 or h[-1][0] - h[0][0] < p.min_history_s - TIME_EPS
-
-    h = before_a_hole([(t, d) for t, d in hist if t >= t0 - p.history_s], p.min_history_s)
-    if short(h):                  # a gap just before cut the stretch short: the longer memory
-        h = list(hist)
-    if short(h):
-        # one frame interval of a video that may be lying (a bad start); but a gap that opens
-        # as the one before it settled goes on at the speed that settled it
-        if settled_v is not None and settled_v[0] >= t0 - TIME_EPS:
-            return settled_v[1], 0.0, 0.0
-        return None, 0.0, 0.0
-    ts, ds = [t - t0 for t, _ in h], [d for _, d in h]
-    if len(h) < 5 or ts[-1] - ts[0] < 0.5 * p.history_s:
-        # read over a moment: its mean is the speed at its middle, which at t0 may have changed by
-        # what a hard start or brake makes of half that (a start at 2.5 m/s^2: 0.17 m/s for 0.33)
-        span = ts[-1] - ts[0]     # (only a moment: over 0.15 s at a low frame rate, its slope as before)
-        return slope(ts, ds), 0.0, 0.0, 0.0, p.hard_accel_m_s2 * span / 2 if span < 0.5 * p.history_s else 0.0
-    # back in time from t0: a ramp that began inside the window, after a cruise (a quadratic
-    # over the window blurs a late brake). Only a brake is carried into the gap (it ends in a
-    # stop); a crawler speeding up goes on at the speed seen, which the speed after settles.
-    # Distances a remount measured again in the window have the re-measure's shape; a refined
-    # tilt's plain scale (is_rescale) is taken out of them, and the ramp is read
-    v_back, a, sa = ramp(ts, ds, p.min_history_s)
-    rate = ramp_rate(p, a, sa)
-    again = remeasured_at is not None and remeasured_at >= h[0][0]
-    if again or rate is None:
-        return slope(ts, ds), 0.0, 0.0
-    if a * v_back < 0:            # speeding up: the speed at t0, not the window's mean, which lags
-        return -v_back, 0.0, 0.0, abs(rate)
-    return -v_back, rate, sa
-
 
 def reach(v0: float, v1: float, T: float, a: float) -> tuple[float, float] | None:
     """The least and the most a crawler travels in T going from speed v0 to v1 when its speed
@@ -181,17 +142,3 @@ def ramp_rate(p, a: float, sa: float) -> float | None:
     if not max(p.min_accel_m_s2, 3 * sa) <= abs(a) <= 1.5 * p.max_accel_m_s2:
         return None
     return max(-p.max_accel_m_s2, min(p.max_accel_m_s2, a))
-
-
-def before_a_hole(h: list, min_s: float) -> list:
-    """The window's samples a speed and a rate are read from. A frame measured across lost frames
-    and lost again within min_s (caught between two gaps, at the edge of what the camera can see)
-    gives the distance, not the motion's shape: one such frame read 2.6 mm short at a wet stretch's
-    edge was fitted as a brake, and the gap after it carried to a stop (a lobe run: -27.7 %). The
-    samples before the hole give the shape, as a speed needs min_s of measuring after any gap."""
-    ts = [t for t, _ in h]
-    if len(ts) < 6:
-        return h
-    frame = sorted(b - a for a, b in zip(ts, ts[1:]))[(len(ts) - 1) // 2]     # the (upper) median interval
-    k = max((i + 1 for i in range(len(ts) - 1) if ts[i + 1] - ts[i] > 1.5 * frame), default=0)
-    return h[:k] if k >= 5 and ts[-1] - ts[k] < min_s - TIME_EPS else h

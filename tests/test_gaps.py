@@ -737,7 +737,7 @@ def test_a_change_between_two_moving_speeds_is_spread_over_every_moment_it_can_c
 def test_a_speed_over_0_15_s_at_a_low_frame_rate_is_no_moment():
     """At 10 fps the history has three frames over 0.2 s: fewer than five, but no moment; its slope
     carries no lag (0.3-0.45 m/s of lag had put 69 mm of sigma on a 30 mm gap, a review)."""
-    from crawler.motionfit import motion_before
+    from crawler.gapends import motion_before
     p = BridgeParams()
     hist = [(t, 0.1 * t) for t in (0.8, 0.9, 1.0)]
     v, a, sa, up, lag = motion_before(p, hist, 1.0)
