@@ -8,8 +8,8 @@ from __future__ import annotations
 import math
 
 from .drive import blurred
-from .gapmodel import stops
-from .motionfit import TIME_EPS, ramp, ramp_at, ramp_rate, slope
+from .gapmodel import braking, stops
+from .motionfit import TIME_EPS, brief_speed, ramp, ramp_at, ramp_rate, slope
 
 
 def motion_before(p, hist, t0: float, settled_v=None, remeasured_at=None):
@@ -51,15 +51,29 @@ def motion_before(p, hist, t0: float, settled_v=None, remeasured_at=None):
 
 
 def speed_after(p, g, t1: float, samples: list, T: float, frame_var: float):
-    """(the speed measured since the gap, the speed and rate at the gap's end, None), or (None, ...)
-    when it was measured too briefly: from the (t, distance) samples measured since t1; T: the
-    model's time over the gap. The speed after must have been measured for min_history_s: with no
-    speed before it settles all of the gap alone, and the first frames seen again are the least
-    sure (the wall half wet or half lit): one frame interval's reading, times a gap of seconds
-    over it, is anything."""
+    """(the speed measured since the gap, the speed and rate at the gap's end, and if it was
+    measured too briefly to settle the gap on its own word: (its own sigma, the speed at the last
+    sample, the rate it goes on at)), or (None, ...), from
+    the (t, distance) samples measured since t1, each known within frame_var (m^2); T: the model's
+    time over the gap.
+
+    The speed after must have been measured for min_history_s: with no speed before it settles
+    all of the gap alone, and the first frames seen again are the least sure (the wall half wet
+    or half lit): one frame interval's reading, times a gap of seconds over it, is anything. With
+    the speed before known, a briefer one still shows how the crawler moved between two gaps,
+    within the frames' noise over its few samples (a brake and a reversal in the frames between
+    three bursts of drops: -5.6 % where the gap was carried through them as one), unless it reads
+    no motion: a wall half seen again shows the light and what stays put with it (a highlight, the
+    mortar lines along the motion) more than the wall, which reads as standing."""
     span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
     if span < p.min_history_s - TIME_EPS:
-        return None, None, 0.0, None
+        brief = None if g.v0 is None else brief_speed(samples, frame_var)
+        if brief is None or abs(brief[0]) < p.brief_still_m_s:
+            return None, None, 0.0, None
+        v, sigma = brief              # (the speed at the samples' middle; still braking, at the brake's
+        rate = g.a0 if braking(g) and 0.0 < v / g.v0 < 1.0 else 0.0      # rate either side of it)
+        mid = sum(t for t, _ in samples) / len(samples)
+        return v, v + rate * (t1 - mid), 0.0, (sigma, v + rate * (samples[-1][0] - mid), rate)
     v1 = v_end = slope([t for t, _ in samples], [d for _, d in samples])
     a1 = 0.0
     stopped = stops(g, T, v1, p.hard_accel_m_s2) is not None

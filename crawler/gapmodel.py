@@ -25,7 +25,8 @@ class BridgeParams:
     hard_accel_m_s2: float = 3.0      # ...but a crawler can brake or start this hard: what sigma must cover
     hidden_stand_s: float = 0.3       # an operator's stop lasts this long at least (one a gap may hide)
     history_s: float = 0.3            # speed and acceleration before a gap: fitted over this much
-    min_history_s: float = 0.1        # ...and a speed measured over less than this is no speed at all
+    min_history_s: float = 0.1        # ...and a speed measured over less than this settles no gap alone
+    brief_still_m_s: float = 0.05     # ...nor, with the speed before known, one under this (gapends.py)
     min_accel_m_s2: float = 0.15      # a fitted acceleration below this is noise: constant speed
     ramp_dv_m_s: float = 0.05         # a speed change across a gap below this is the fits' error, not a ramp
     settle_s: float = 0.25            # after a fresh start, measure the speed this long before settling

@@ -12,9 +12,11 @@ afresh (its distance does not). This stage turns that into a distance that never
   rate, or, where the model stopped inside the gap, a brake and a start at the same rate after the
   middle of the stands possible; a gap long enough to stop and start in may hide a stand: its
   uncertainty spans down to braking and starting at the crawler's best. Measured too briefly for
-  a speed and lost again, the gap goes on from where it began (the frames after that short start
-  are continuous with it); a fresh start that knows its motion over a few frames (`since`) counts
-  them as measured, and the speed that settled a gap carries the next one if it opens at once;
+  a speed and lost again, the gap is settled by that brief speed where the speed before it is known
+  (within the frames' noise over so few), else it goes on from where it began (the frames after
+  that short start are continuous with it); a fresh start that knows its motion over a few frames
+  (`since`) counts them as measured, and the speed that settled a gap carries the next one if it
+  opens at once;
 - every estimate carries `sigma_m`, its 1-sigma uncertainty: the closed keyframe steps' (the tracks'
   spread over their number, and a scale term), the frame's jitter (what moves all tracks at once:
   the camera pitching on a bouncing car, compression; each frame's pose error cancels between the
@@ -70,6 +72,7 @@ class GapBridge:
         self._out_m, self.corrected_m = distance_m, 0.0
         self.noise = FrameNoise(self.p)   # the measured frame's own noise, not carried on (framenoise.py)
         self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
+        self._brief = None            # ...by a brief speed: (t, speed then, rate on, its sigma, the speed's)
         self._remeasured_at = None    # when the odometer last measured its steps at a new tilt
         self._carried: list = []      # [t0, t1, metres] of the gaps the model settled, newest last
         self.drive = DriveWatch(self.p)   # the cruise and rates the drive was seen at (drive.py)
@@ -116,6 +119,9 @@ class GapBridge:
     def _open_gap(self, est=None) -> Gap:
         t0 = self._hist[-1][0]
         g = Gap(t0, self._out_m, *motion_before(self.p, self._hist, t0, self._settled_v, self._remeasured_at))
+        if self._brief is not None and self._brief[0] >= t0 - TIME_EPS:   # on from the brief speed that settled
+            g.v0, g.a0, g.sa, g.up = (*self._brief[1:4], 0.0)          # the last (a fit across its hole reads
+            g.lag = max(g.lag, self._brief[4])                          # the motion before that one)
         cruise, g.drive = self.drive.cruise, self.drive.rates()   # (a cruise older than the horizon: none)
         g.vis0 = self._out_m - self.offset_m
         g.cruise = cruise[1] if cruise is not None and cruise[0] >= t0 - self.p.max_bridge_s else None
@@ -187,6 +193,9 @@ class GapBridge:
                 self._hist = deque((t, d + extra if t >= gap[1] else d) for t, d in self._hist)
         if self._settled_v is not None and self._settled_v[0] >= since:
             self._settled_v = (self._settled_v[0], self._settled_v[1] * scale)
+        if self._brief is not None and self._brief[0] >= since:
+            t, v, a, sa, sv = self._brief
+            self._brief = (t, v * scale, a * scale, sa * scale, sv * scale)
         self.drive.rescaled(since, scale)
         if g is None or g.t0 < since:
             return False
@@ -308,12 +317,12 @@ class GapBridge:
         return T
 
     def _settle_or_reopen(self):
-        """Settle the gap with the speed measured since it, or, measured too briefly for a speed,
-        reopen it: it goes on from where it began."""
+        """Settle the gap with the speed measured since it, or, measured too briefly for a speed
+        (gapends.speed_after), reopen it: it goes on from where it began."""
         g, (t1, samples) = self._gap, self._settling
-        self._settling = None
+        self._settling, self._brief = None, None
         T, stands_var = model_time(g, t1)
-        v1, v_end, a1, _ = speed_after(self.p, g, t1, samples, T, self.noise.pose_var)
+        v1, v_end, a1, brief = speed_after(self.p, g, t1, samples, T, self.noise.pose_var)
         if v1 is None and g.across:   # measured across, and lost again too soon to check: it stands
             self._keep_across(g, samples[0][1])
             return
@@ -344,6 +353,10 @@ class GapBridge:
         both = g.v0 is not None and stops(g, T, v_end, self.p.hard_accel_m_s2) is None
         self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, both, lag=g.lag) + unseen_var + stands_var
         self._gap = None
+        if brief is not None:         # the brief speed's own error over the gap; the next gap goes on from
+            sigma, v_last, rate = brief   # it, braking on where it bore the brake out
+            self.var_gaps += (0.5 * sigma * T) ** 2
+            self._brief = (samples[-1][0], v_last, rate, g.sa if rate else 0.0, sigma)
 
     def _reachable(self, g: Gap, T: float, d1: float, v1: float) -> bool:
         """Could a crawler have gone the odometer's step across the gap (motionfit.could_go)? Not

@@ -1,7 +1,8 @@
 """Fits of a crawler's motion to a few dozen measured distances, for the gap bridge (gaps.py). Pure.
 
 A crawler's drive ramps at a constant rate and then cruises: `ramp` fits that, with where the ramp
-ends found by least squares, and says how sure its rate is; `slope` is the plain speed.
+ends found by least squares, and says how sure its rate is; `slope` is the plain speed, and
+`brief_speed` the speed of a few frames with its error.
 """
 
 from __future__ import annotations
@@ -23,6 +24,19 @@ def slope(ts, ds) -> float | None:
     mt, md = sum(ts) / n, sum(ds) / n
     den = sum((t - mt) ** 2 for t in ts)
     return None if den <= 0 else sum((t - mt) * (d - md) for t, d in zip(ts, ds)) / den
+
+
+def brief_speed(samples, frame_var: float) -> tuple[float, float] | None:
+    """(speed, its 1-sigma error) of (t, distance) samples measured too briefly for a gap's speed
+    after (a few frames between two gaps): least squares, each distance known within frame_var
+    (m^2: the frame's jitter and the car's pitch, which over a few frames is no straight line).
+    None: fewer than two times."""
+    ts = [t for t, _ in samples]
+    v = slope(ts, [d for _, d in samples])
+    if v is None:
+        return None
+    mt = sum(ts) / len(ts)
+    return v, math.sqrt(frame_var / sum((t - mt) ** 2 for t in ts))
 
 
 def ramp(ts, ds, min_s: float) -> tuple[float, float, float]:
