@@ -51,9 +51,9 @@ def motion_before(p, hist, t0: float, settled_v=None, remeasured_at=None):
 
 
 def speed_after(p, g, t1: float, samples: list, T: float, frame_var: float):
-    """(the speed measured since the gap, the speed and rate at the gap's end, and if it was
-    measured too briefly to settle the gap on its own word: (its own sigma, the speed at the last
-    sample, the rate it goes on at)), or (None, ...), from
+    """(the speed measured since the gap, the speed at the gap's end and the rate read there (0:
+    none), and if it was measured too briefly to settle the gap on its own word: (its own sigma,
+    the speed at the last sample, the rate it goes on at)), or (None, ...), from
     the (t, distance) samples measured since t1, each known within frame_var (m^2); T: the model's
     time over the gap.
 
@@ -64,14 +64,17 @@ def speed_after(p, g, t1: float, samples: list, T: float, frame_var: float):
     within the frames' noise over its few samples (a brake and a reversal in the frames between
     three bursts of drops: -5.6 % where the gap was carried through them as one), unless it reads
     no motion: a wall half seen again shows the light and what stays put with it (a highlight, the
-    mortar lines along the motion) more than the wall, which reads as standing."""
+    mortar lines along the motion) more than the wall, which reads as standing; nor inside a stand
+    the frames showed (their jitter is no motion). Its sigma: the frames' noise over the samples'
+    spread in time, and a hard brake over half of them (a moment's mean is its middle's speed)."""
     span = samples[-1][0] - samples[0][0] if len(samples) >= 2 else 0.0
     if span < p.min_history_s - TIME_EPS:
-        brief = None if g.v0 is None else brief_speed(samples, frame_var)
+        brief = None if g.v0 is None or g.open_at_close else brief_speed(samples, frame_var)
         if brief is None or abs(brief[0]) < p.brief_still_m_s:
             return None, None, 0.0, None
         v, sigma = brief              # (the speed at the samples' middle; still braking, at the brake's
         rate = g.a0 if braking(g) and 0.0 < v / g.v0 < 1.0 else 0.0      # rate either side of it)
+        sigma = math.hypot(sigma, p.hard_accel_m_s2 * span / 2)         # (a hard brake over half of them)
         mid = sum(t for t, _ in samples) / len(samples)
         return v, v + rate * (t1 - mid), 0.0, (sigma, v + rate * (samples[-1][0] - mid), rate)
     v1 = v_end = slope([t for t, _ in samples], [d for _, d in samples])

@@ -13,8 +13,8 @@ afresh (its distance does not). This stage turns that into a distance that never
   middle of the stands possible; a gap long enough to stop and start in may hide a stand: its
   uncertainty spans down to braking and starting at the crawler's best. Measured too briefly for
   a speed and lost again, the gap is settled by that brief speed where the speed before it is known
-  (within the frames' noise over so few), else it goes on from where it began (the frames after
-  that short start are continuous with it); a fresh start that knows its motion over a few frames
+  and it reads motion (0.05 m/s), not its sigma, which stays the model's; else the gap goes on from
+  where it began (the frames after that short start are continuous with it); a fresh start that knows its motion over a few frames
   (`since`) counts them as measured, and the speed that settled a gap carries the next one if it
   opens at once;
 - every estimate carries `sigma_m`, its 1-sigma uncertainty: the closed keyframe steps' (the tracks'
@@ -193,9 +193,6 @@ class GapBridge:
                 self._hist = deque((t, d + extra if t >= gap[1] else d) for t, d in self._hist)
         if self._settled_v is not None and self._settled_v[0] >= since:
             self._settled_v = (self._settled_v[0], self._settled_v[1] * scale)
-        if self._brief is not None and self._brief[0] >= since:
-            t, v, a, sa, sv = self._brief
-            self._brief = (t, v * scale, a * scale, sa * scale, sv * scale)
         self.drive.rescaled(since, scale)
         if g is None or g.t0 < since:
             return False
@@ -323,8 +320,8 @@ class GapBridge:
         self._settling, self._brief = None, None
         T, stands_var = model_time(g, t1)
         v1, v_end, a1, brief = speed_after(self.p, g, t1, samples, T, self.noise.pose_var)
-        if v1 is None and g.across:   # measured across, and lost again too soon to check: it stands
-            self._keep_across(g, samples[0][1])
+        if g.across and (v1 is None or brief is not None):   # measured across, and lost again too
+            self._keep_across(g, samples[0][1])              # soon to check: it stands
             return
         if v1 is None:                # reopen: drop what the short measurement added to the history
             while self._hist and self._hist[-1][0] >= t1:
@@ -333,7 +330,7 @@ class GapBridge:
             if g.open_at_close:       # it stood on: the stand the measurement ended goes on
                 rejoin(g, self._held, t1)
             return
-        self._settled_v = (samples[-1][0], v1)
+        self._settled_v = (samples[-1][0], v1 if brief is None else brief[1])
         if g.across and self._reachable(g, T, samples[0][1], v_end):
             self._keep_across(g, samples[0][1])
             return
@@ -351,12 +348,15 @@ class GapBridge:
         # both ends known: the trapezoid's residual; only the speed after, or a stop the model
         # guessed inside the gap: as unsure as while blind
         both = g.v0 is not None and stops(g, T, v_end, self.p.hard_accel_m_s2) is None
-        self.var_gaps += model_var(self.p, T, 0.0 if g.v0 is None else g.v0, both, lag=g.lag) + unseen_var + stands_var
+        var = model_var(self.p, T, 0.0 if g.v0 is None else g.v0, both, lag=g.lag) + unseen_var + stands_var
+        if brief is not None:         # a brief speed may be a wall's edge misread: it moves the gap, not
+            var = max(var, self._model_var(g, t1)[1])     # its sigma; the next gap goes on from it
+            sigma, v_last, rate = brief                   # (braking on where it bore the brake out),
+            t = samples[-1][0]                            # as unsure as it is off the model's speed
+            model = (travel_to(self.p, g, t + 0.01) - travel_to(self.p, g, t - 0.01)) / 0.02
+            self._brief = (t, v_last, rate, g.sa if rate else 0.0, max(sigma, abs(v_last - model)))
+        self.var_gaps += var
         self._gap = None
-        if brief is not None:         # the brief speed's own error over the gap; the next gap goes on from
-            sigma, v_last, rate = brief   # it, braking on where it bore the brake out
-            self.var_gaps += (0.5 * sigma * T) ** 2
-            self._brief = (samples[-1][0], v_last, rate, g.sa if rate else 0.0, sigma)
 
     def _reachable(self, g: Gap, T: float, d1: float, v1: float) -> bool:
         """Could a crawler have gone the odometer's step across the gap (motionfit.could_go)? Not

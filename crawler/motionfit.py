@@ -128,8 +128,9 @@ def reach(v0: float, v1: float, T: float, a: float) -> tuple[float, float] | Non
     changes at most a per second (slowing down first, then speeding up; and the other way round).
     None: no such crawler gets from v0 to v1 in T."""
     k = (v1 - v0) / a
-    if abs(k) > T:
+    if abs(k) > T * (1 + 1e-9):
         return None
+    k = max(-T, min(T, k))                       # (a rate of |v1 - v0| / T itself, rounded)
     up, down = (T + k) / 2, (T - k) / 2          # the time speeding up first (the most), slowing first (the least)
     top, low = v0 + a * up, v0 - a * down
     return (0.5 * (v0 + low) * down + 0.5 * (low + v1) * (T - down),

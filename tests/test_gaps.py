@@ -8,7 +8,7 @@ import pytest
 
 from crawler.gapmodel import Gap, model_time, see_stand, set_off, settled_travel, travel
 from crawler.gaps import BridgeParams, GapBridge
-from crawler.motionfit import remeasured
+from crawler.motionfit import could_go, reach, remeasured
 
 FPS = 30.0
 
@@ -180,14 +180,29 @@ def reversing(v, at, rate):
 def test_the_few_frames_between_bursts_of_drops_show_a_brake_and_a_reversal():
     # a crawler at 0.4 m/s brakes at 0.8 m/s^2 and backs off at 0.4 m/s while three bursts of drops
     # leave it seen for three frames, then two: carried through them as one gap from the speed before
-    # to the speed after, the brake and the reversal were the trapezoid's zero, 0.15 m short over 1.7 s
-    # (an independent review's run: -5.6 %). Each brief stretch's speed settles the gap before it
+    # to the speed after, the brake and the reversal were the model's zero, 93 mm short over 1.6 s
+    # (an independent review's run: -147 mm, -5.6 %). Each brief stretch's speed settles the gap before it
     truth = reversing(0.4, 2.4, 0.8)
     blind = [(2.0, 2.49), (2.59, 3.02), (3.09, 3.6)]
     t, d, s, bridged = drive(truth, blind, 4.5)
     err = d - np.array([truth(x) for x in t])
     assert abs(err[-1]) < 0.03 and abs(err[-1]) < 2 * s[-1]
     assert np.all(np.abs(err) <= 2 * s + 1e-4)
+
+
+
+def test_brief_speeds_read_through_frame_noise_keep_sigma_honest():
+    # a cruise at 0.3 m/s seen for two frames between four 0.3 s gaps, 1 mm of noise on every
+    # measured frame, 100 seeds: a two-frame speed is anything within 0.04 m/s, and its error is in
+    # the gap it settles and in the next, which goes on from it. Counted once, as if white, 9 % of
+    # the runs ended beyond 2 sigma (a review's case)
+    z = []
+    for seed in range(100):
+        noise = np.random.default_rng(seed).normal(0.0, 1e-3, 200)
+        t, d, s, _ = drive(lambda x: 0.3 * x + noise[round(x * FPS)],
+                           [(2.0, 2.3), (2.36, 2.66), (2.72, 3.02), (3.08, 3.38)], 4.5)
+        z.append((d[-1] - 0.3 * t[-1]) / s[-1])
+    assert np.mean(np.abs(z) > 2) <= 0.05 and np.sqrt(np.mean(np.square(z))) < 1
 
 
 def test_a_brake_goes_on_from_the_few_frames_seen_in_it():
@@ -1156,10 +1171,13 @@ def test_a_re_measure_on_the_frame_that_closes_a_reopened_gap_scales_it():
     assert published(47) == pytest.approx(published(60), abs=0.002)
 
 
-def test_a_frame_measured_inside_a_stand_shown_does_not_split_it():
+@pytest.mark.parametrize("frames, jitter_m", [(1, 0.0), (2, 0.002), (3, -0.002)])
+def test_a_frame_measured_inside_a_stand_shown_does_not_split_it(frames, jitter_m):
     """One frame measured in the middle of a stand inside a gap (a fresh start, lost again at once):
     the measurement ended the stand, not the crawler. Taken as a start and a second stand's brake,
-    it cost 205 mm at 0.3 m/s; the stand goes on (gapmodel.rejoin)."""
+    it cost 205 mm at 0.3 m/s; the stand goes on (gapmodel.rejoin). So it does for two or three
+    frames whose jitter reads 0.06 m/s (each a frame's 2 mm): taken as a brief speed, the crawler
+    was carried at it after the stand, -372 mm (a review's case)."""
     v, rate, brake_at, go = 0.3, 0.4, 2.7, 8.0
     stop = brake_at + v / rate
     stood = v * brake_at + v * v / (2 * rate)
@@ -1175,11 +1193,12 @@ def test_a_frame_measured_inside_a_stand_shown_does_not_split_it():
         bridge, vision, last = GapBridge(), 0.0, None
         for i in range(int(11 * FPS)):
             t = i / FPS
-            if blip is not None and abs(t - blip) < 1e-9:
-                out = bridge.update(est(t, vision, continuous=False, keyframe=True))
+            k = round((t - blip) * FPS) if blip is not None else -1
+            if 0 <= k < frames:
+                out = bridge.update(est(t, vision + k * jitter_m, continuous=k > 0, keyframe=k == 0))
             elif 2.0 <= t < 10.0:
                 e = est(t, vision, tracking=False)
-                since = stop if blip is None or t < blip else blip + 1 / FPS
+                since = stop if blip is None or t < blip else blip + frames / FPS
                 e.stand = (since, min(t, go)) if since + 0.1 <= t < go + 0.15 else None
                 out = bridge.update(e)
             else:
@@ -1429,3 +1448,24 @@ def test_a_gap_that_opens_past_half_a_set_off_seen_speeding_up_drives_on_to_the_
     crawl = brake_stand_go(0.09, 1.0, 0.3, 3.0, 0.3)
     t, d, s, br = drive(crawl, [(3.14, 4.5)], 4.49, speed=True)
     assert br[-1] and abs(d[-1] - crawl(t[-1])) < 0.02
+
+
+def test_a_step_measured_across_drops_stands_when_the_frames_after_it_are_too_few_to_check():
+    # 0.3 m/s, five frames dropped and measured across, then two frames, the second 19 mm short
+    # (a misread: -0.27 m/s), then lost again: the step stands as measured, as it did before brief
+    # speeds settled gaps (a review's case: it was judged by that speed, and the check's bound
+    # rounded to no bound at all, TypeError)
+    bridge = GapBridge()
+    for i in range(60):
+        bridge.update(est(i / FPS, 0.3 * i / FPS, keyframe=i % 10 == 0))
+    bridge.update(est(65 / FPS, 0.3 * 65 / FPS))
+    bridge.update(est(66 / FPS, 0.3 * 66 / FPS - 0.019))
+    b = bridge.update(est(67 / FPS, 0.3 * 66 / FPS - 0.019, tracking=False))
+    assert b.bridged and abs(b.distance_m - 0.3 * 67 / FPS) < 0.03
+
+
+def test_the_reach_between_two_speeds_a_ramp_apart_survives_rounding():
+    # speeds exactly one ramp apart at the rate |v1 - v0| / T, which floating point makes a hair more
+    assert could_go(0.06, 0.2999999999999999, -0.2699999999999942, 0.19999999999999996, 1.0, 0.05) in (True, False)
+    assert reach(0.0, 0.3, 0.3 * (1 - 1e-15), 1.0) == pytest.approx((0.045, 0.045))
+    assert reach(0.0, 0.3, 0.29, 1.0) is None
