@@ -15,8 +15,9 @@ from .motionfit import TIME_EPS, brief_speed, ramp, ramp_at, ramp_rate, slope
 def motion_before(p, hist, t0: float, settled_v=None, remeasured_at=None):
     """(speed, acceleration, its 1-sigma error[, the rate of a crawler speeding up[, how far the speed
     may be from the speed at t0]]) at t0 from the measured (t, distance) samples hist (speed None:
-    never measured). p: the bridge's parameters (gapmodel.BridgeParams); settled_v: (t, speed) of the last gap settled; remeasured_at: when the
-    odometer last measured its steps again at a new tilt."""
+    never measured). p: the bridge's parameters (gapmodel.BridgeParams); settled_v: (t, speed) of
+    the last gap settled; remeasured_at: when the odometer last measured its steps again at a new
+    tilt."""
     def short(h):
         return len(h) < 2 or h[-1][0] - h[0][0] < p.min_history_s - TIME_EPS
 
@@ -53,9 +54,8 @@ def motion_before(p, hist, t0: float, settled_v=None, remeasured_at=None):
 def speed_after(p, g, t1: float, samples: list, T: float, frame_var: float):
     """(the speed measured since the gap, the speed at the gap's end and the rate read there (0:
     none), and if it was measured too briefly to settle the gap on its own word: (its own sigma,
-    the speed at the last sample, the rate it goes on at)), or (None, ...), from
-    the (t, distance) samples measured since t1, each known within frame_var (m^2); T: the model's
-    time over the gap.
+    the speed at the last sample, the rate it goes on at)), or (None, ...), from the (t, distance)
+    samples measured since t1, each known within frame_var (m^2); T: the model's time over the gap.
 
     The speed after must have been measured for min_history_s: with no speed before it settles
     all of the gap alone, and the first frames seen again are the least sure (the wall half wet

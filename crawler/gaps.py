@@ -14,9 +14,9 @@ afresh (its distance does not). This stage turns that into a distance that never
   uncertainty spans down to braking and starting at the crawler's best. Measured too briefly for
   a speed and lost again, the gap is settled by that brief speed where the speed before it is known
   and it reads motion (0.05 m/s), not its sigma, which stays the model's; else the gap goes on from
-  where it began (the frames after that short start are continuous with it); a fresh start that knows its motion over a few frames
-  (`since`) counts them as measured, and the speed that settled a gap carries the next one if it
-  opens at once;
+  where it began (the frames after that short start are continuous with it); a fresh start that
+  knows its motion over a few frames (`since`) counts them as measured, and the speed that settled
+  a gap carries the next one if it opens at once;
 - every estimate carries `sigma_m`, its 1-sigma uncertainty: the closed keyframe steps' (the tracks'
   spread over their number, and a scale term), the frame's jitter (what moves all tracks at once:
   the camera pitching on a bouncing car, compression; each frame's pose error cancels between the
