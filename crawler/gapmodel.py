@@ -265,6 +265,11 @@ def travel_to(p: BridgeParams, g: Gap, t_s: float) -> float:
     return travel(p, g, model_time(g, t_s)[0])
 
 
+def speed_to(p: BridgeParams, g: Gap, t_s: float, dt: float = 0.01) -> float:
+    """The speed the model carried the crawler at, at t_s: the slope of its travel there."""
+    return (travel_to(p, g, t_s + dt) - travel_to(p, g, t_s - dt)) / (2 * dt)
+
+
 def standing(p: BridgeParams, v: float) -> bool:
     """A speed within a measured speed's own error: a standing crawler, whatever its sign."""
     return abs(v) <= p.speed_sigma_m_s

@@ -34,8 +34,8 @@ from dataclasses import dataclass
 from .drive import DriveWatch, drive_rate
 from .framenoise import FrameNoise
 from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, rate_range_var, rejoin,
-                       see_stand, set_off, settled_travel, stand_state, standing, start_rate_seen, stops, travel,
-                       travel_to)
+                       see_stand, set_off, settled_travel, speed_to, stand_state, standing, start_rate_seen, stops,
+                       travel, travel_to)
 from .gapends import motion_before, speed_after
 from .motionfit import TIME_EPS, could_go
 from .motionfit import is_rescale as _is_rescale, remeasured as _remeasured
@@ -353,8 +353,8 @@ class GapBridge:
             var = max(var, self._model_var(g, t1)[1])     # its sigma; the next gap goes on from it
             sigma, v_last, rate = brief                   # (braking on where it bore the brake out),
             t = samples[-1][0]                            # as unsure as it is off the model's speed
-            model = (travel_to(self.p, g, t + 0.01) - travel_to(self.p, g, t - 0.01)) / 0.02
-            self._brief = (t, v_last, rate, g.sa if rate else 0.0, max(sigma, abs(v_last - model)))
+            off = abs(v_last - speed_to(self.p, g, t))
+            self._brief = (t, v_last, rate, g.sa if rate else 0.0, max(sigma, off))
         self.var_gaps += var
         self._gap = None
 
