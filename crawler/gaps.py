@@ -34,9 +34,10 @@ from dataclasses import dataclass
 from .drive import DriveWatch, drive_rate
 from .framenoise import FrameNoise
 from .gapmodel import (BridgeParams, Gap, model_time, model_var, moving_speed, rate_range_var, rejoin,
-                       see_stand, set_off, settled_travel, speed_to, stand_state, standing, start_rate_seen, stops,
+                       see_stand, set_off, speed_to, stand_state, standing, start_rate_seen, stops,
                        travel, travel_to)
 from .gapends import motion_before, speed_after
+from .gapsettle import settled_travel
 from .motionfit import TIME_EPS, could_go
 from .motionfit import is_rescale as _is_rescale, remeasured as _remeasured
 

@@ -6,7 +6,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from crawler.gapmodel import Gap, model_time, see_stand, set_off, settled_travel, travel
+from crawler.gapmodel import Gap, model_time, see_stand, set_off, travel
+from crawler.gapsettle import settled_travel
 from crawler.gaps import BridgeParams, GapBridge
 from crawler.motionfit import could_go, reach, remeasured
 
