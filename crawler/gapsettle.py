@@ -21,6 +21,8 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     stop = stops(g, T, v1, p.hard_accel_m_s2)
     if stop is not None:
         return _settled_after_stop(p, g, T, v1, a1, stop)
+    if (between := _stood_between(p, g, T, v1, a1)) is not None:
+        return between
     # a constant acceleration over the gap; but a ramp seen at one end goes on at its rate to the
     # other end's speed, when the change is more than the speeds' own errors could make
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0
@@ -93,3 +95,21 @@ def _settled_after_stop(p: BridgeParams, g: Gap, T: float, v1: float, a1: float,
         return braked, 0.0             # stopped again somewhere up to where the carry had it: the middle
     carried = travel(p, g, T) - braked - g.carried_m   # (what it drove between stands shown is known)
     return braked + g.carried_m + carried / 2, carried * carried / 12.0
+
+
+def _stood_between(p: BridgeParams, g: Gap, T: float, v1: float, a1: float) -> tuple[float, float] | None:
+    """A brake read before the gap, too gentle to stop inside it, and a start from rest read after it
+    (slower than before or the other way, and speeding up): the crawler stood between. A fit over a
+    window that mostly cruised reads a brake's onset weak (0.31 m/s^2 for a drive braking at 1.0: the
+    trapezoid carried a stop-and-go in a 0.97 s burst of drops at 0.3 m/s, +188 mm). It was at rest
+    by the time it set off (|v1 / a1| before the gap's end), braking at any rate from the one that
+    just gets it there to the hardest a crawler brakes at: the middle of the times that takes, with
+    their uniform variance. None: no such start, or no time to stop before it."""
+    if not (braking(g) and a1 * v1 > 0 and (v1 * g.v0 < 0 or abs(v1) <= abs(g.v0) - p.ramp_dv_m_s)):
+        return None
+    longest = T - abs(v1 / a1)                    # when it set off from rest
+    shortest = abs(g.v0) / p.hard_accel_m_s2
+    if shortest > longest:
+        return None
+    moved = 0.25 * g.v0 * (shortest + longest) + 0.5 * v1 * abs(v1 / a1)
+    return moved, (0.5 * g.v0 * (longest - shortest)) ** 2 / 12.0

@@ -812,6 +812,23 @@ def test_a_brake_read_before_a_gap_is_no_stop_when_the_speed_after_says_none_was
     assert stood < 0.5 * (0.387 + 0.2) * 0.9 - 0.05
 
 
+def test_a_brake_read_before_a_gap_and_a_start_from_rest_after_it_stood_between():
+    """Cruising at 0.4 m/s, braking at 1 m/s^2 two frames before a burst of drops from 2.27 to 3.2 s,
+    standing from 2.6 to 3.0 s and setting off at 1 m/s^2: the fit before reads a brake too weak
+    to stop in the gap (0.3 m/s^2), the one after a start from rest. The trapezoid carried it at
+    0.3 m/s through the stand (+188 mm); it stood between, and the error is inside sigma."""
+    truth = brake_stand_go(0.4, 2.2, 1.0, 3.0, 1.0)
+    t, d, s, br = drive(truth, [(2.27, 3.2)], 4.5)
+    err = d[-1] - truth(t[-1])
+    assert abs(err) < 0.03 and abs(err) < s[-1]
+    p = BridgeParams()
+    # the same, reversing out of the stand: it went forward to the stop and back from it, not the
+    # trapezoid's 0.1 m forward; a speed after that is the cruise (no start from rest) stays the trapezoid
+    back, var = settled_travel(p, Gap(0.0, 0.0, 0.3, -0.2), 1.0, -0.1, -0.5)
+    assert back == pytest.approx(0.25 * 0.3 * (0.1 + 0.8) - 0.01) and var > 0
+    assert settled_travel(p, Gap(0.0, 0.0, 0.4, -0.2), 1.0, 0.38, 0.3)[0] == pytest.approx(0.39)
+
+
 def test_a_speed_read_over_a_moment_before_a_gap_is_as_unsure_as_a_hard_start_makes_it():
     """A run set off at 2.5 m/s^2 and went blind after 0.13 s: the slope of its few frames is the
     speed at their middle (0.17 m/s where it was 0.33), and the gap settled 49 mm short at 6 % of
