@@ -19,10 +19,10 @@ def settled_travel(p: BridgeParams, g: Gap, T: float, v1: float, a1: float = 0.0
     if g.v0 is None:      # a run that started blind: the speed after, constant (even odds it set off in it)
         return v1 * T, max(0.0, abs(v1) * T - v1 * v1 / (2 * p.hard_accel_m_s2)) ** 2 / 6.0
     stop = stops(g, T, v1, p.hard_accel_m_s2)
+    if (between := _stood_between(p, g, T, v1, a1, stop)) is not None:
+        return between
     if stop is not None:
         return _settled_after_stop(p, g, T, v1, a1, stop)
-    if (between := _stood_between(p, g, T, v1, a1)) is not None:
-        return between
     # a constant acceleration over the gap; but a ramp seen at one end goes on at its rate to the
     # other end's speed, when the change is more than the speeds' own errors could make
     guess, gain, dv = 0.5 * (g.v0 + v1) * T, abs(v1) - abs(g.v0), v1 - g.v0
@@ -97,9 +97,10 @@ def _settled_after_stop(p: BridgeParams, g: Gap, T: float, v1: float, a1: float,
     return braked + g.carried_m + carried / 2, carried * carried / 12.0
 
 
-def _stood_between(p: BridgeParams, g: Gap, T: float, v1: float, a1: float) -> tuple[float, float] | None:
-    """A brake read before the gap, too gentle to stop inside it, and a start from rest read after it
-    (slower than before or the other way, and speeding up): the crawler stood between. A fit over a
+def _stood_between(p: BridgeParams, g: Gap, T: float, v1: float, a1: float, stop: float | None) -> tuple[float, float] | None:
+    """A brake read before the gap, too gentle to stop before a start from rest read after it (slower
+    than before or the other way, and speeding up): the crawler stood between. (`stop`: where the
+    model's brake at the rate read stops inside the gap; a start after that is _settled_after_stop's.) A fit over a
     window that mostly cruised reads a brake's onset weak (0.31 m/s^2 for a drive braking at 1.0: the
     trapezoid carried a stop-and-go in a 0.97 s burst of drops at 0.3 m/s, +188 mm). It was at rest
     by the time it set off (|v1 / a1| before the gap's end), braking at any rate from the one that
@@ -108,6 +109,8 @@ def _stood_between(p: BridgeParams, g: Gap, T: float, v1: float, a1: float) -> t
     if not (braking(g) and a1 * v1 > 0 and (v1 * g.v0 < 0 or abs(v1) <= abs(g.v0) - p.ramp_dv_m_s)):
         return None
     longest = T - abs(v1 / a1)                    # when it set off from rest
+    if stop is not None and (longest >= stop or g.last_end is not None or g.stand is not None):
+        return None
     shortest = abs(g.v0) / p.hard_accel_m_s2
     if longest <= 0 or abs(g.v0) / longest > p.max_accel_m_s2:
         return None                               # no drive stops by then: it slowed down, not to rest

@@ -821,6 +821,11 @@ def test_a_brake_read_before_a_gap_and_a_start_from_rest_after_it_stood_between(
     t, d, s, br = drive(truth, [(2.27, 3.2)], 4.5)
     err = d[-1] - truth(t[-1])
     assert abs(err) < 0.03 and abs(err) < s[-1]
+    # a longer gap, where the brake read (0.27 m/s^2) stops inside it, but only after the start from
+    # rest read after it (at 0.6 m/s^2 from 3.3 s): the brake was harder too (+121 mm at the rate read)
+    truth = brake_stand_go(0.35, 2.2, 1.0, 3.3, 0.6)
+    t, d, s, br = drive(truth, [(2.27, 3.6)], 4.5)
+    assert abs(d[-1] - truth(t[-1])) < 0.06
     p = BridgeParams()
     # the same, reversing out of the stand: it went forward to the stop and back from it, not the
     # trapezoid's 0.1 m forward; a speed after that is the cruise (no start from rest) stays the trapezoid
