@@ -97,12 +97,13 @@ def _settled_after_stop(p: BridgeParams, g: Gap, T: float, v1: float, a1: float,
     return braked + g.carried_m + carried / 2, carried * carried / 12.0
 
 
-def _stood_between(p: BridgeParams, g: Gap, T: float, v1: float, a1: float, stop: float | None) -> tuple[float, float] | None:
+def _stood_between(p: BridgeParams, g: Gap, T: float, v1: float, a1: float,
+                   stop: float | None) -> tuple[float, float] | None:
     """A brake read before the gap, too gentle to stop before a start from rest read after it (slower
-    than before or the other way, and speeding up): the crawler stood between. (`stop`: where the
-    model's brake at the rate read stops inside the gap; a start after that is _settled_after_stop's.) A fit over a
-    window that mostly cruised reads a brake's onset weak (0.31 m/s^2 for a drive braking at 1.0: the
-    trapezoid carried a stop-and-go in a 0.97 s burst of drops at 0.3 m/s, +188 mm). It was at rest
+    than before or the other way, and speeding up): the crawler stood between (`stop`: where the
+    brake at the rate read stops inside the gap; a start after that is _settled_after_stop's). A fit
+    over a window that mostly cruised reads a brake's onset weak (0.31 m/s^2 for a drive braking at
+    1.0: the trapezoid carried a stop-and-go in a 0.97 s burst of drops at 0.3 m/s, +188 mm). It was at rest
     by the time it set off (|v1 / a1| before the gap's end), braking at any rate from the one that
     just gets it there to the hardest a crawler brakes at: the middle of the times that takes, with
     their uniform variance. None: no such start, or none a drive (max_accel_m_s2) stops in time for."""
@@ -118,10 +119,10 @@ def _stood_between(p: BridgeParams, g: Gap, T: float, v1: float, a1: float, stop
     var = (0.5 * g.v0 * (longest - shortest)) ** 2 / 12.0
     # ...or it only slowed down: at most to where braking at the rate read and speeding up at the
     # rate read after meet (a slow-down to 0.08 m/s taken for a stop read 50 mm short, 2.4 sigma)
-    brake, up = abs(g.a0), abs(a1)
-    dip = (abs(g.v0) - abs(v1) + up * T) / (brake + up) if v1 * g.v0 > 0 else 0.0
+    brake, up = abs(g.a0), abs(a1)                # (a reversal went through rest)
+    dip = (abs(g.v0) - abs(v1) + up * T) / (brake + up)
     low = abs(g.v0) - brake * dip
-    if low > 0.0:
+    if v1 * g.v0 > 0 and low > 0.0:
         most = 0.5 * (abs(g.v0) + low) * dip + 0.5 * (low + abs(v1)) * (T - dip)
         var += (most - abs(moved)) ** 2 / 12.0
     return moved, var
