@@ -153,8 +153,9 @@ class VideoReplay:
 
     def _decoded(self):
         """(index in the stream, frame, an I-frame: coded anew, not from the frames before it) of
-        every frame that decodes; a damaged packet is counted and skipped, not the end of the stream. A frame the decoder could only conceal (it flags it corrupt)
-        is counted too: it is measured, but what it shows is partly the decoder's guess.
+        every frame that decodes; a damaged packet is counted and skipped, not the end of the
+        stream. A frame the decoder could only conceal (it flags it corrupt) is counted too: it is
+        measured, but what it shows is partly the decoder's guess.
 
         Raw streams carry no timestamps, so each packet is stamped with its index: a frame that comes
         out then knows its place even when frames before it were lost (exact for the I/P-only streams
