@@ -194,6 +194,8 @@ class GapBridge:
                 self._hist = deque((t, d + extra if t >= gap[1] else d) for t, d in self._hist)
         if self._settled_v is not None and self._settled_v[0] >= since:
             self._settled_v = (self._settled_v[0], self._settled_v[1] * scale)
+        if self._brief is not None and self._brief[0] >= since:     # its speeds and rate: at the new tilt too
+            self._brief = (self._brief[0], *(x * scale for x in self._brief[1:]))
         self.drive.rescaled(since, scale)
         if g is None or g.t0 < since:
             return False

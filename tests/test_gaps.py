@@ -863,6 +863,17 @@ def test_a_brake_into_a_gap_and_a_speed_up_after_it_that_never_stopped_is_within
     assert abs(err) < 2 * s[-1] and abs(err) < 0.06
 
 
+def test_a_re_measure_scales_the_brief_speed_a_next_gap_goes_on_from():
+    """The brief speed that settled the last gap carries the next one (gaps.py _open_gap); a tilt
+    re-measure of the epoch scales it as it scales the speed that settled the gap (session 19's
+    review of the change: it scaled `_settled_v` and left the brief speed at the old tilt)."""
+    b = GapBridge()
+    b._settled_v, b._brief = (2.0, 0.3), (2.0, 0.3, -0.5, 0.1, 0.02)
+    b._measured_again(SimpleNamespace(rescaled_since_s=1.0), 0.1, 1.1)     # the epoch's metres x 1.1
+    assert b._settled_v[1] == pytest.approx(0.33)
+    assert b._brief == pytest.approx((2.0, 0.33, -0.55, 0.11, 0.022))
+
+
 def test_a_speed_read_over_a_moment_before_a_gap_is_as_unsure_as_a_hard_start_makes_it():
     """A run set off at 2.5 m/s^2 and went blind after 0.13 s: the slope of its few frames is the
     speed at their middle (0.17 m/s where it was 0.33), and the gap settled 49 mm short at 6 % of
