@@ -72,8 +72,9 @@ class GapBridge:
         self._gap_prev_var = 0.0
         self._out_m, self.corrected_m = distance_m, 0.0
         self.noise = FrameNoise(self.p)   # the measured frame's own noise, not carried on (framenoise.py)
-        self._settled_v = None        # (t, speed) of the last gap settled: its last sample and the speed after
-        self._brief = None            # ...by a brief speed: (t, speed then, rate on, its sigma, the speed's)
+        self._last_settle = None      # (t, speed, brief) of the last gap settled: its last sample, the speed
+                                      # after, and when a brief speed settled it, (rate on, its sigma, the
+                                      # speed's): the next gap goes on from that brief speed
         self._remeasured_at = None    # when the odometer last measured its steps at a new tilt
         self._carried: list = []      # [t0, t1, metres] of the gaps the model settled, newest last
         self.drive = DriveWatch(self.p)   # the cruise and rates the drive was seen at (drive.py)
@@ -119,10 +120,11 @@ class GapBridge:
 
     def _open_gap(self, est=None) -> Gap:
         t0 = self._hist[-1][0]
-        g = Gap(t0, self._out_m, *motion_before(self.p, self._hist, t0, self._settled_v, self._remeasured_at))
-        if self._brief is not None and self._brief[0] >= t0 - TIME_EPS:   # on from the brief speed that settled
-            g.v0, g.a0, g.sa, g.up = (*self._brief[1:4], 0.0)          # the last (a fit across its hole reads
-            g.lag = max(g.lag, self._brief[4])                          # the motion before that one)
+        last = self._last_settle
+        g = Gap(t0, self._out_m, *motion_before(self.p, self._hist, t0, last and last[:2], self._remeasured_at))
+        if last is not None and last[2] is not None and last[0] >= t0 - TIME_EPS:   # on from the brief speed
+            g.v0, g.a0, g.sa, g.up = (last[1], *last[2][:2], 0.0)   # that settled the last (a fit across its
+            g.lag = max(g.lag, last[2][2])                           # hole reads the motion before that one)
         cruise, g.drive = self.drive.cruise, self.drive.rates()   # (a cruise older than the horizon: none)
         g.vis0 = self._out_m - self.offset_m
         g.cruise = cruise[1] if cruise is not None and cruise[0] >= t0 - self.p.max_bridge_s else None
@@ -192,10 +194,9 @@ class GapBridge:
                 if g is not None and g.t0 >= gap[1]:    # the gap open now starts after it: so does its
                     g.d0 += extra                        # distance (its close sets the offset from it)
                 self._hist = deque((t, d + extra if t >= gap[1] else d) for t, d in self._hist)
-        if self._settled_v is not None and self._settled_v[0] >= since:
-            self._settled_v = (self._settled_v[0], self._settled_v[1] * scale)
-        if self._brief is not None and self._brief[0] >= since:     # its speeds and rate: at the new tilt too
-            self._brief = (self._brief[0], *(x * scale for x in self._brief[1:]))
+        last = self._last_settle
+        if last is not None and last[0] >= since:   # its speeds and rate: at the new tilt too
+            self._last_settle = (last[0], last[1] * scale, last[2] and tuple(x * scale for x in last[2]))
         self.drive.rescaled(since, scale)
         if g is None or g.t0 < since:
             return False
@@ -320,7 +321,9 @@ class GapBridge:
         """Settle the gap with the speed measured since it, or, measured too briefly for a speed
         (gapends.speed_after), reopen it: it goes on from where it began."""
         g, (t1, samples) = self._gap, self._settling
-        self._settling, self._brief = None, None
+        self._settling = None
+        if self._last_settle is not None:   # reopened or kept across: the speed stays, not its brief carry
+            self._last_settle = (*self._last_settle[:2], None)
         T, stands_var = model_time(g, t1)
         v1, v_end, a1, brief = speed_after(self.p, g, t1, samples, T, self.noise.pose_var)
         if g.across and (v1 is None or brief is not None):   # measured across, and lost again too
@@ -333,7 +336,7 @@ class GapBridge:
             if g.open_at_close:       # it stood on: the stand the measurement ended goes on
                 rejoin(g, self._held, t1)
             return
-        self._settled_v = (samples[-1][0], v1 if brief is None else brief[1])
+        self._last_settle = (samples[-1][0], v1 if brief is None else brief[1], None)
         if g.across and self._reachable(g, T, samples[0][1], v_end):
             self._keep_across(g, samples[0][1])
             return
@@ -357,7 +360,7 @@ class GapBridge:
             sigma, v_last, rate = brief                   # (braking on where it bore the brake out),
             t = samples[-1][0]                            # as unsure as it is off the model's speed
             off = abs(v_last - speed_to(self.p, g, t))
-            self._brief = (t, v_last, rate, g.sa if rate else 0.0, max(sigma, off))
+            self._last_settle = (t, v_last, (rate, g.sa if rate else 0.0, max(sigma, off)))
         self.var_gaps += var
         self._gap = None
 

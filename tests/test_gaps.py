@@ -866,12 +866,16 @@ def test_a_brake_into_a_gap_and_a_speed_up_after_it_that_never_stopped_is_within
 def test_a_re_measure_scales_the_brief_speed_a_next_gap_goes_on_from():
     """The brief speed that settled the last gap carries the next one (gaps.py _open_gap); a tilt
     re-measure of the epoch scales it as it scales the speed that settled the gap (session 19's
-    review of the change: it scaled `_settled_v` and left the brief speed at the old tilt)."""
+    review of the change: it scaled the settling speed and left the brief speed at the old tilt)."""
     b = GapBridge()
-    b._settled_v, b._brief = (2.0, 0.3), (2.0, 0.3, -0.5, 0.1, 0.02)
+    b._last_settle = (2.0, 0.3, (-0.5, 0.1, 0.02))
     b._measured_again(SimpleNamespace(rescaled_since_s=1.0), 0.1, 1.1)     # the epoch's metres x 1.1
-    assert b._settled_v[1] == pytest.approx(0.33)
-    assert b._brief == pytest.approx((2.0, 0.33, -0.55, 0.11, 0.022))
+    t, speed, brief = b._last_settle
+    assert (t, speed) == pytest.approx((2.0, 0.33))
+    assert brief == pytest.approx((-0.55, 0.11, 0.022))
+    b._hist.extend([(1.9, 0.0), (2.0, 0.03)])
+    g = b._open_gap()                                  # the next gap opens on the brief speed, rescaled
+    assert (g.v0, g.a0, g.sa) == pytest.approx((0.33, -0.55, 0.11)) and g.lag >= 0.022
 
 
 def test_a_speed_read_over_a_moment_before_a_gap_is_as_unsure_as_a_hard_start_makes_it():
