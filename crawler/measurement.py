@@ -16,7 +16,8 @@ from .flow import FlowParams
 from .gaps import BridgeParams
 from .geometry import Camera, check_distortion, check_view, make_projection
 from .odometry import Odometer, OdometryParams
-from .pose import NullPose, PoseEstimator, PoseParams
+from .pose import PoseEstimator, PoseParams
+from .poseport import NullPose
 from .ride import MAX_TILT_DEG as RIDE_MAX_TILT_DEG
 from .settings import CameraSettings, OdometrySettings, Settings
 

@@ -27,7 +27,7 @@ from .gates import FrameGates, SpreadGate, reacquired
 from .geometry import Camera, Projection
 from .keyframe import Keyframe, keyframe_features, motion_model, track_visible
 from .odometry_params import OdometryParams
-from .pose import NullPose
+from .poseport import NullPose
 
 
 class Odometer:

@@ -31,6 +31,7 @@ from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop, far_apart
 from .estimate import finite_round
 from .posemodel import (HEIGHT, K_HEIGHT, K_PITCH, K_SWAY, MODEL, MODEL_FLAT, N_POSE, PITCH, SWAY, height_change,
                         least_squares)
+from .poseport import NO_FIX, PoseFix
 from .ride import RideHeight
 
 
@@ -48,55 +49,6 @@ class PoseParams:
     level_memory_s: float = 2.0       # how long the pitch and bounce the tracks show are remembered
     warm_up_s: float = 0.5            # ...and how long they are learned before they correct the distance
     tilt: AutoTiltParams = AutoTiltParams()
-
-
-@dataclass(frozen=True)
-class PoseFix:
-    """What the odometer applies to a frame: metres added to its step and lateral step, to the
-    keyframe's distance (earlier steps measured again), and the projection to move to."""
-
-    step_m: float = 0.0
-    lat_m: float = 0.0
-    base_m: float = 0.0
-    remount: object = None
-    rescaled_m: float = 0.0    # of base_m, what a changed tilt gave (the rest: the keyframe's pose refined),
-    rescaled_over_m: float = 0.0   # over this many metres of steps (the tilt's epoch), measured since
-    rescaled_since_s: float | None = None
-
-
-NO_FIX = PoseFix()
-
-
-class NullPose:
-    """The odometer without a pose estimate: the mount is what the configuration says."""
-
-    active = False
-    pitch_shown_rad = 0.0     # the car's pitch the tracks show: none read
-    scale_sigma_m = 0.0
-
-    def __init__(self, tilt_deg: float | None = None):
-        self.tilt_deg = tilt_deg
-
-    def keyframe(self, kf, px, t_s):
-        pass
-
-    def new_count(self):
-        pass
-
-    def measure(self, kf, c, t_s) -> PoseFix:
-        return NO_FIX
-
-    def status(self) -> dict:
-        return {"tilt_deg": self.tilt_deg, "tilt_sigma_deg": None, "tilt_auto": False}
-
-    def frame(self) -> dict:
-        return {}
-
-    def checkpoint(self) -> dict:
-        return {}
-
-    def resume(self, saved) -> None:
-        return None
 
 
 class PoseEstimator:
