@@ -53,6 +53,7 @@ class Hop:
     pose: tuple              # (pitch, height, keyframe pitch, keyframe height) used
     d: float                 # the step as it stands in the distance now
     g: float                 # d step / d tilt
+    scale: float = 0.0       # the ride height's scale of the step (crawler/ride.py): kept when measured again
 
 
 class FixedTilt:
@@ -60,6 +61,7 @@ class FixedTilt:
 
     auto = False
     tau = 0.0
+    level_m = 0.0             # the ride height's level the readings are taken at (AutoTilt)
     sigma_rad = 0.0
     distance_sigma_m = 0.0    # what the tilt's uncertainty leaves in the distance: none, configured
     steps = 0
@@ -281,11 +283,12 @@ class AutoTilt(FixedTilt):
         spread reads as a tilt whichever side the car swayed to (2 mm: 1 deg at 40 deg)."""
         m, kind = self.projection.mount, type(self.projection)
         t0, h = m.tilt_rad + self.tau, math.radians(self.p.reading_half_deg)
-        keep = _not_stray(kind(replace(m, tilt_rad=t0)), xy_k, xy_c)
+        hm = m.height_m + self.level_m         # read at the height ridden (a ride height's level applied)
+        keep = _not_stray(kind(replace(m, tilt_rad=t0, height_m=hm)), xy_k, xy_c)
         xy_k, xy_c, shutter = xy_k[keep], xy_c[keep], shutter[keep]
         sway = self.field.at(xy_c)[:, 4:6]
         sway = sway - sway.mean(axis=0)
-        c_lo, c0, c_hi = (disagreement(kind(replace(m, tilt_rad=t0 + d)), xy_k, xy_c, shutter, sway)
+        c_lo, c0, c_hi = (disagreement(kind(replace(m, tilt_rad=t0 + d, height_m=hm)), xy_k, xy_c, shutter, sway)
                           for d in (-h, 0.0, h))
         a, slope = (c_lo + c_hi - 2 * c0) / (2 * h * h), (c_hi - c_lo) / (2 * h)
         if not a > 0:                  # no least: no reading (TiltTrack.add refuses it)
@@ -305,10 +308,11 @@ class AutoTilt(FixedTilt):
         dy = hop.dy + (wk1[:, 1] - wk0[:, 1]) - (wc1[:, 1] - wc0[:, 1])
         jk, jc = self.field.at(hop.xy_k).mean(axis=0), self.field.at(hop.xy_c).mean(axis=0)
         pc, hc, pk, hk = hop.pose
-        d = robust_mean(dy, self._floor_m) + jk[1] * pk - jc[1] * pc - jc[3] * (hc - hk)
+        ride = 1.0 + hop.scale
+        d = (robust_mean(dy, self._floor_m) + jk[1] * pk - jc[1] * pc - jc[3] * (hc - hk)) * ride
         if not math.isfinite(d):
             return 0.0
-        change, hop.d, hop.g, hop.projection, hop.dy = d - hop.d, d, float(jk[1] - jc[1]), new, dy
+        change, hop.d, hop.g, hop.projection, hop.dy = d - hop.d, d, float(jk[1] - jc[1]) * ride, new, dy
         return change
 
 

@@ -80,22 +80,25 @@ def pose_params(settings: Settings) -> PoseParams | None:
     # unset: pitch, height and sway with a configured tilt; with tilt "auto" alone none: on a shaking car
     # the tilt's own error dominates, and both together measured worse (docs/accuracy.md, "Pose")
     on = o.estimate_pose if o.estimate_pose is not None else not auto and o.method != "pixel"
-    # unset: the ride height where its readings hold, a configured tilt up to MAX_TILT_DEG (steeper,
-    # they drift alike and the chain sums them)
+    # unset: the ride height where its readings hold, a tilt up to MAX_TILT_DEG (steeper, they drift
+    # alike and the chain sums them); with tilt auto the pose is read for it and not applied, and the
+    # level only at a tilt found up to there
     ride = o.ride_height if o.ride_height is not None else (
-        on and not auto and abs(settings.mount.tilt_deg) <= RIDE_MAX_TILT_DEG)
-    if o.ride_height and not on:
-        raise BadConfig("[odometry] ride_height = true sums the pose estimator's height changes: it needs a configured "
-                        "[mount] tilt_deg and [odometry] estimate_pose unset or true (or set ride_height = false)")
+        o.estimate_pose is not False if auto else on and abs(settings.mount.tilt_deg) <= RIDE_MAX_TILT_DEG)
+    if o.ride_height and not (on or auto):
+        raise BadConfig("[odometry] ride_height = true sums the pose estimator's height changes: it needs "
+                        "[odometry] estimate_pose unset or true (or set ride_height = false)")
     if not (auto or on):
         return None
     if o.method == "pixel":
         what = '[mount] tilt_deg = "auto"' if settings.mount.tilt_auto else "[odometry] estimate_pose = true"
         raise BadConfig(f'{what} needs [odometry] method = "cylinder" or "plane": the pixel method has no '
                         "tilt or height to estimate")
-    return PoseParams(auto_tilt=settings.mount.tilt_auto, pitch_sigma_deg=o.pitch_jitter_deg if on else 0.0,
-                      bounce_sigma_mm=o.bounce_mm if on else 0.0, sway_sigma_mm=o.sway_mm if on else 0.0,
-                      ride_height=ride)
+    read = on or ride
+    return PoseParams(auto_tilt=auto, pitch_sigma_deg=o.pitch_jitter_deg if read else 0.0,
+                      bounce_sigma_mm=o.bounce_mm if read else 0.0, sway_sigma_mm=o.sway_mm if read else 0.0,
+                      ride_height=ride, correct_pose=on,
+                      ride_max_tilt_deg=RIDE_MAX_TILT_DEG if auto and o.ride_height is None else math.inf)
 
 
 def build_odometer(settings: Settings, camera: Camera, default_roi) -> Odometer:

@@ -45,6 +45,8 @@ class PoseParams:
     sway_sigma_mm: float = 2.0        # the car's weave across the pipe ([odometry] sway_mm); 0: not estimated
     sway_tau_s: float = 1.0
     ride_height: bool = False         # the ride height's level from the height changes ([odometry] ride_height)
+    ride_max_tilt_deg: float = math.inf   # ...read and applied only up to this tilt (tilt auto's default: ride.MAX_TILT_DEG)
+    correct_pose: bool = True         # False: pitch, height and sway only read, for the ride height (tilt auto)
     noise_scale: float = 4.0          # a feature's error persists over its keyframe's frames: count each ~1/16
     level_memory_s: float = 2.0       # how long the pitch and bounce the tracks show are remembered
     warm_up_s: float = 0.5            # ...and how long they are learned before they correct the distance
@@ -98,7 +100,7 @@ class PoseEstimator:
         kf.pose = (self.tilt.field.at_roi(kf.pts), xy, self._serial)
         continuous = self._t is None or t_s == self._t    # the run's first, or on the frame just measured
         self._closing = self._end if continuous else None
-        if self.ride and continuous and self._read_dh is not None and self._kf_at is not None:
+        if self.ride and continuous and self._read_dh is not None and self._kf_at is not None and self._rides():
             change = height_change(*self._read_dh, self._ride_read)
             if change is not None:
                 self.ride.handover(*change, kf.distance - self._kf_at[0], t_s - self._kf_at[1],
@@ -141,20 +143,27 @@ class PoseEstimator:
         self._found = found
         if any(self._limit):                       # pitch, height or sway estimated at all
             base += self._filter(hh, hz, zz, c.sigma, 2 * len(idx), t_s - kf.t_s,
-                                 learn_only=t_s < self._warm_until or not found)
+                                 learn_only=t_s < self._warm_until or not found or not self.p.correct_pose)
         step, lat, sens = self._correction(means, self.tilt.tau)
-        if self.ride and self.ride.level_m:        # a ride height scales the whole step
+        scale = 0.0
+        if self.ride and self.ride.level_m and self._rides():    # a ride height scales the whole step
             scale = self.ride.level_m / self.projection.mount.height_m
             step, lat = step + (c.step + step) * scale, lat + (c.lat + lat) * scale
         if self.tilt.auto:
+            self.tilt.level_m = scale * self.projection.mount.height_m
             self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
-                                 tuple(self.s.take(_TILT_POSE)), float(moved[1].mean()) + step, sens))
+                                 tuple(self.s.take(_TILT_POSE)), float(moved[1].mean()) + step, sens, scale))
         old = self.projection
         remount, extra = self.tilt.remount()
         if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
             self._forget()                         # its pitch and height were the tilt's error
         c.step, c.lat, kf.distance = c.step + step, c.lat + lat, kf.distance + base + extra
         return PoseFix(step, lat, base + extra, remount, rescaled + extra, *(self.tilt.epoch if rescaled + extra else ()))
+
+    def _rides(self) -> bool:
+        """The ride height is read and applied: at a tilt found (tilt auto) and not beyond where its
+        readings hold (at 40 deg they drift alike and the chain sums them)."""
+        return self._found and abs(self.tilt_deg) <= self.p.ride_max_tilt_deg
 
     def _shutter(self, kf, idx, pts, t_s):
         """Each track's rolling-shutter factor: the frame interval over the time between the two
@@ -201,7 +210,8 @@ class PoseEstimator:
     @property
     def height_m(self) -> float:
         if self.ride:                              # the ride's level at the keyframe, and the change since
-            return self.projection.mount.height_m + self.ride.level_m + float(self.s[HEIGHT] - self.s[K_HEIGHT])
+            level = self.ride.level_m if self._rides() else 0.0
+            return self.projection.mount.height_m + level + float(self.s[HEIGHT] - self.s[K_HEIGHT])
         return self.projection.mount.height_m + float(self.s[HEIGHT])
 
     # -- the filter -------------------------------------------------------------------------------
