@@ -85,7 +85,7 @@ def pose_params(settings: Settings) -> PoseParams | None:
     # level only at a tilt found up to there
     ride = o.ride_height if o.ride_height is not None else (
         o.estimate_pose is not False if auto else on and abs(settings.mount.tilt_deg) <= RIDE_MAX_TILT_DEG)
-    if o.ride_height and not (on or auto):
+    if o.ride_height and (o.estimate_pose is False or o.method == "pixel"):
         raise BadConfig("[odometry] ride_height = true sums the pose estimator's height changes: it needs "
                         "[odometry] estimate_pose unset or true (or set ride_height = false)")
     if not (auto or on):

@@ -91,7 +91,7 @@ class Odometer:
         if self._kf is not None:
             self._kf.distance += delta
         self._speed.reset()
-        self.pose.new_count()      # tilt auto measures no step from before it again into the new count
+        self.pose.new_count(delta)  # tilt auto measures no step from before it again into the new count
 
     def update(self, frame: np.ndarray, t_s: float, intra: bool = False) -> Estimate:
         """Process one full grey frame (only its ROI is read) taken at t_s s (`intra`: an I-frame)."""

@@ -77,6 +77,7 @@ class PoseEstimator:
         self._t = None
         self._warm_until = None                    # the first measured frame's time + warm_up_s
         self._found = False                        # tilt auto: the tilt found (the search done)
+        self._riding = False                       # ...and the ride height read and applied at it
         self._serial = 0
         self._end = None                           # the last measured frame's d(step)/d(pitch, height, sway)
         self._closing = None                       # ...when that frame is the keyframe now
@@ -112,8 +113,10 @@ class PoseEstimator:
         self.P[:, N_POSE:] = self.P[:, :N_POSE]
         self.tilt.closed(continuous, t_s)
 
-    def new_count(self):                           # the operator's reset: no step before it measured again
-        self.tilt.new_count()
+    def new_count(self, delta_m: float = 0.0):     # the operator's reset: no step before it measured again,
+        self.tilt.new_count()                      # and the ride's keyframe counted in the new count too
+        if self._kf_at is not None:
+            self._kf_at = (self._kf_at[0] + delta_m, self._kf_at[1])
 
     def measure(self, kf, c, t_s) -> PoseFix:
         """One measured frame: the odometer's consensus c (crawler/odometry.py): the keyframe's inlier
@@ -140,10 +143,15 @@ class PoseEstimator:
         if self._warm_until is None or (found and not self._found):   # pose takes up its error: not till then
             self._warm_until = t_s + self.p.warm_up_s
             self._relearn()
+            # the ride height, decided once per tilt found: a bank's rise moves the estimate by ~1 deg,
+            # and a gate on the estimate closed on the climb and lost it (29.5 deg: +1.55 %)
+            self._riding = found and abs(self.tilt_deg) <= self.p.ride_max_tilt_deg
         self._found = found
         if any(self._limit):                       # pitch, height or sway estimated at all
             base += self._filter(hh, hz, zz, c.sigma, 2 * len(idx), t_s - kf.t_s,
                                  learn_only=t_s < self._warm_until or not found or not self.p.correct_pose)
+            if not found:                          # read at a tilt searched for, a pitch is the tilt's
+                self.pitch_shown_rad = 0.0         # error, which its own sigma counts
         step, lat, sens = self._correction(means, self.tilt.tau)
         scale = 0.0
         if self.ride and self.ride.level_m and self._rides():    # a ride height scales the whole step
@@ -152,7 +160,8 @@ class PoseEstimator:
         if self.tilt.auto:
             self.tilt.level_m = scale * self.projection.mount.height_m
             self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
-                                 tuple(self.s.take(_TILT_POSE)), float(moved[1].mean()) + step, sens, scale))
+                                 tuple(self.s.take(_TILT_POSE)), float(moved[1].mean()) + step, sens * (1.0 + scale),
+                                 scale))
         old = self.projection
         remount, extra = self.tilt.remount()
         if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
@@ -161,9 +170,9 @@ class PoseEstimator:
         return PoseFix(step, lat, base + extra, remount, rescaled + extra, *(self.tilt.epoch if rescaled + extra else ()))
 
     def _rides(self) -> bool:
-        """The ride height is read and applied: at a tilt found (tilt auto) and not beyond where its
-        readings hold (at 40 deg they drift alike and the chain sums them)."""
-        return self._found and abs(self.tilt_deg) <= self.p.ride_max_tilt_deg
+        """The ride height is read and applied: at a tilt found (tilt auto) and, when it was found,
+        not beyond where its readings hold (at 40 deg they drift alike and the chain sums them)."""
+        return self._found and self._riding
 
     def _shutter(self, kf, idx, pts, t_s):
         """Each track's rolling-shutter factor: the frame interval over the time between the two

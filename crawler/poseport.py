@@ -36,7 +36,7 @@ class NullPose:
     def keyframe(self, kf, px, t_s):
         pass
 
-    def new_count(self):
+    def new_count(self, delta_m: float = 0.0):
         pass
 
     def measure(self, kf, c, t_s) -> PoseFix:

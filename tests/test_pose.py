@@ -116,6 +116,8 @@ def test_estimate_pose_unset_means_with_a_configured_tilt_only():
     for without in ("odometry.estimate_pose=false", "odometry.method='pixel'"):
         with pytest.raises(BadConfig, match="ride_height = true sums the pose estimator's height changes"):
             params("odometry.ride_height=true", without)
+    with pytest.raises(BadConfig, match="ride_height = true sums the pose estimator's height changes"):
+        params("odometry.ride_height=true", "mount.tilt_deg='auto'", "odometry.estimate_pose=false")
 
 
 def test_status_carries_the_tilt_and_its_sigma_finite(render_run):
@@ -454,6 +456,20 @@ def test_the_ride_height_reads_a_bank_of_sediment_that_reads_long_without_it(ren
     assert np.mean(err <= 2 * np.array([r["sigma_m"] for r in rows])) >= 0.9
 
 
+def test_tilt_auto_decides_the_ride_height_once_per_tilt_found(render_run, crawlerd, tmp_path, monkeypatch):
+    """The bank's rise moves tilt auto's estimate up by ~0.7 deg. A gate on the estimate near the
+    limit closed on the climb and lost the rise (a review: 29.5 deg +1.55 %, 30 deg +2.32 %); the
+    limit put just above this 24 deg run's tilt shows it."""
+    import crawler.measurement as measurement
+
+    monkeypatch.setattr(measurement, "RIDE_MAX_TILT_DEG", 24.45)
+    run = render_run("sediment", tilt_deg=24, speed_m_s=0.2, duration_s=6.0, seed=63, bounce_mm=0.5,
+                     height_profile=((0.2, 0.0), (0.4, 12.0), (0.8, 12.0), (1.0, 0.0)))
+    s, rows, _ = replay(crawlerd, run, tmp_path, "--tilt", "auto")
+    assert max(r["tilt_deg"] for r in rows) > 24.45                    # the estimate crossed the limit...
+    assert 100 * abs(s["distance_m"] - run["truth"]["true_distance_m"]) / run["truth"]["path_length_m"] < 0.5
+
+
 def _shaking_tilt_run(pitch_deg=0.3, bounce_mm=1.0, sway_mm=2.0, tilt_deg=40.0, keyframes=60, seed=11):
     """Tilt auto on a car at 0.1 m/s, 30 fps, that pitches (3.1 Hz), bounces (2.3 Hz) and weaves
     (0.5 Hz): exact image points of fixed wall points, measured as the odometer does (wall
@@ -650,3 +666,19 @@ def test_a_reading_too_unsure_of_itself_is_no_turn_of_the_camera():
 
     assert turned(3.6) == [None, None]
     assert turned(0.1)[1] is not None                # a turn (begun where the readings last agreed)
+
+
+def test_an_operator_reset_carries_the_ride_height_s_keyframe_into_the_new_count():
+    """The ride height reads each keyframe's travel from its distance at the keyframe before; a
+    reset shifts the odometer's distances, and that one with them (a review: after a reset to 0 at
+    1.4 m the next handover read 1.37 m of travel, and sigma_m tripled)."""
+    from crawler.geometry import make_projection
+    from crawler.measurement import recording_camera, thesis_roi
+    from crawler.pose import PoseEstimator, PoseParams
+
+    cam = recording_camera(S.CameraSettings())
+    pose = PoseEstimator(cam, make_projection("cylinder", S.MountSettings(tilt_deg=24.0).mount()),
+                         thesis_roi(cam.width, cam.height), PoseParams(ride_height=True))
+    pose._kf_at = (1.4, 7.0)
+    pose.new_count(-1.4)
+    assert pose._kf_at == pytest.approx((0.0, 7.0))
