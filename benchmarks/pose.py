@@ -1,6 +1,6 @@
 """The camera's pose from the flow (issue 14): tilt auto, a tilt step, shake runs. Prints figures.
 
-    python benchmarks/pose.py [--out DIR] [--jobs N] [--only tilt,table,step,shake,ride,fixed,both] [--markdown]
+    python benchmarks/pose.py [--out DIR] [--jobs N] [--only tilt,table,step,sweep,shake,ride,fixed,both] [--markdown]
 
 Every case is an hw_sim recording (cached in --out, with the true tilt and camera height per frame
 in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
@@ -9,6 +9,8 @@ in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
          after 2 s and at the end, and when it came within 0.3 deg to stay;
 - table: benchmarks/accuracy.py's cases (cylinder) with tilt auto: error in % of the path;
 - step:  the operator turns the camera 24 -> 40 deg mid-run (a step and a 0.3 s turn), tilt auto;
+- sweep: the operator turns it slowly (24 -> 40 deg over 6 s, 24 -> 30 over 8 s, 40 -> 10 over 3 s,
+         and 24 -> 34 over 4 s on a shaking car), tilt auto;
 - shake: suspension bounce, pitch jitter, roll and sway at several tilts and speeds: configured
          tilt with the pose estimator on (shake) and off (shake-off, the default), and tilt auto: final error and the worst deviation from the
          true trajectory mid-run, in % of the path (and of the path so far, after its first 0.2 m);
@@ -48,6 +50,16 @@ STEP_CASES = {
                            seed=41),
     "turn-24-40-0.2": dict(tilt_deg=24, tilt_schedule=((4.0, 24.0), (4.3, 40.0)), speed_m_s=0.2, duration_s=10,
                            seed=42),
+}
+SWEEP_CASES = {                           # the operator turns the camera slowly: too slow for a step
+    "sweep-24-40-0.2": dict(tilt_deg=24, tilt_schedule=((3.0, 24.0), (9.0, 40.0)), speed_m_s=0.2, duration_s=12,
+                            seed=71),
+    "sweep-24-30-0.1": dict(tilt_deg=24, tilt_schedule=((2.0, 24.0), (10.0, 30.0)), speed_m_s=0.1, duration_s=12,
+                            seed=72),
+    "sweep-40-10-0.3": dict(tilt_deg=40, tilt_schedule=((2.0, 40.0), (5.0, 10.0)), speed_m_s=0.3, duration_s=8,
+                            seed=73),
+    "sweep-shake-24-34-0.2": dict(tilt_deg=24, tilt_schedule=((3.0, 24.0), (7.0, 34.0)), speed_m_s=0.2,
+                                  duration_s=10, seed=74, **SHAKE),
 }
 SHAKE_CASES = {
     **{f"shake-{t}deg-{v}": dict(tilt_deg=t, speed_m_s=v, duration_s=d, seed=50 + t, **SHAKE)
@@ -138,6 +150,8 @@ def jobs(out: Path, only: set) -> list:
     if "step" in only:
         todo += [(out, "step", n, f, ["mount.tilt_deg=auto"]) for n, f in STEP_CASES.items()]
         todo += [(out, "step-fixed", n, f, ["mount.tilt_deg=24"]) for n, f in STEP_CASES.items()]
+    if "sweep" in only:
+        todo += [(out, "sweep", n, f, ["mount.tilt_deg=auto"]) for n, f in SWEEP_CASES.items()]
     if "shake" in only:
         for n, f in SHAKE_CASES.items():
             tilt = f"mount.tilt_deg={f['tilt_deg']}"
@@ -193,7 +207,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "out" / "pose"), help="where rendered runs are cached")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--only", default="tilt,table,step,shake,ride,fixed")
+    ap.add_argument("--only", default="tilt,table,step,sweep,shake,ride,fixed")
     ap.add_argument("--cases", help="comma-separated subset of the case names")
     ap.add_argument("--markdown", action="store_true")
     args = ap.parse_args(argv)

@@ -25,7 +25,7 @@ import numpy as np
 from .consensus import robust_step
 from .odometry_params import OdometryParams
 from .posefield import JacobianField
-from .tilt import TiltParams, TiltSearch, TiltTrack
+from .tilt import SweepWatch, TiltParams, TiltSearch, TiltTrack
 
 
 MAD_K = OdometryParams.mad_k              # the odometer's inlier gate, in robust sigmas
@@ -85,6 +85,9 @@ class FixedTilt:
     def remount(self):
         return None, 0.0
 
+    def keyframe_offset(self, since_kf_s: float) -> float:
+        return 0.0
+
 
 class AutoTilt(FixedTilt):
     """The tilt estimate, as an offset `tau` (radians) from the mount the odometer measures with."""
@@ -106,6 +109,8 @@ class AutoTilt(FixedTilt):
         self._break_t = -math.inf     # the first measured frame after lost frames
         self._after_break = False
         self.steps = 0
+        self._kf_t = 0.0              # when the current keyframe was taken
+        self.sweep = SweepWatch()     # a camera turned slowly: followed, the steps behind it left as measured
         self._spread = self._scale_spread(self.p.tilt.start_sigma_deg)   # while the search has found nothing
         self._sensitivity = 0.0       # d(distance)/d(tilt) of the epoch's steps, once found
         # the odometer's inlier floor in metres at the ROI's centre (roughly: a floor, not a measure)
@@ -132,7 +137,10 @@ class AutoTilt(FixedTilt):
             if self.track is None:
                 self._search_step(serial, moved_px, xy_k, xy_c, shutter)
             else:
-                self._closing = (moved_px, xy_k, xy_c, shutter)
+                self._closing = (moved_px, xy_k, xy_c, shutter, t_s - self._kf_t)
+        if self.sweep.moving and self.track is not None:   # between readings the camera turns on
+            t0, tilt0, rate, _ = self.sweep.line
+            self.tau = tilt0 + rate * (t_s - t0) - self.projection.mount.tilt_rad
         change = self.tau - before
         for hop in self.hops:
             hop.d += hop.g * change
@@ -191,8 +199,9 @@ class AutoTilt(FixedTilt):
         the steps before it were measured at the tilt before the turn, and its first step is the
         gap's, which crawler/gaps.py bridges with the motion model."""
         self._after_break = self._after_break or not continuous
-        if self._last is not None:
-            self.hops.append(self._last)
+        self._kf_t = t_s
+        if self._last is not None and not self.sweep.moving:   # a step measured while the camera turned
+            self.hops.append(self._last)                          # stays at the tilt it had
             del self.hops[:-self.p.max_hops]
         self._last = None
 
@@ -220,6 +229,11 @@ class AutoTilt(FixedTilt):
         hops = [h for h in self.hops + [self._last] if h is not None and h.t_s != self._break_t]
         extra = sum(self._measure_again(h, new) for h in hops)
         return new, extra
+
+    def keyframe_offset(self, since_kf_s: float) -> float:
+        """The keyframe's tilt less this frame's, while the camera turns (radians): a turn moves
+        the whole view along the wall as travel does (24 to 40 deg: ~9 cm at the wall)."""
+        return -self.sweep.line[2] * since_kf_s if self.sweep.moving else 0.0
 
     # -- internals ----------------------------------------------------------------------------------
 
@@ -259,7 +273,17 @@ class AutoTilt(FixedTilt):
         closing, self._closing = self._closing, None
         if self.track is None or closing is None:
             return
-        a, slope, at, sigma = self._reading(*closing)
+        a, slope, at, sigma = self._reading(*closing[:4])
+        level = None
+        if self.sweep.moving:                              # the keyframe at the tilt the turn gave it
+            a1, s1, at1, _ = self._reading(*closing)
+            level = at1 - s1 / (2 * a1) if a1 > 0 else None
+        if a > 0 and self.sweep.add(t_s, at - slope / (2 * a), level, sigma):
+            t0, tilt0, rate, s = self.sweep.line          # the camera turns: the steps so far stay at the
+            self.hops = []                                 # tilt they were measured with, and the tilt is the
+            self.track = TiltTrack(tilt0, self.p.tilt, s)  # line's (a fresh track: it ends where the turn does)
+            self.tau = tilt0 - self.projection.mount.tilt_rad
+            return
         began = self.track.add(a, slope, at, t_s, sigma)
         if began is None:
             self.tau = self.track.value - self.projection.mount.tilt_rad
@@ -269,9 +293,10 @@ class AutoTilt(FixedTilt):
         centre = self.projection.mount.tilt_rad + self.tau
         self.search = TiltSearch(centre, 3 * math.radians(self.p.tilt.start_sigma_deg))   # a turn: anywhere
         self.track = None
+        self.sweep.reset()
         self._spread = self._scale_spread(self.p.tilt.step_sigma_deg)
 
-    def _reading(self, moved_px, xy_k, xy_c, shutter):
+    def _reading(self, moved_px, xy_k, xy_c, shutter, since_kf_s: float = 0.0):
         """The parabola through the disagreement at the estimate and either side of it: (curvature,
         slope at the estimate, the estimate), scaled to weigh by the features' travel, and the
         reading's own sigma (radians). A change of
@@ -288,8 +313,12 @@ class AutoTilt(FixedTilt):
         xy_k, xy_c, shutter = xy_k[keep], xy_c[keep], shutter[keep]
         sway = self.field.at(xy_c)[:, 4:6]
         sway = sway - sway.mean(axis=0)
-        c_lo, c0, c_hi = (disagreement(kind(replace(m, tilt_rad=t0 + d, height_m=hm)), xy_k, xy_c, shutter, sway)
-                          for d in (-h, 0.0, h))
+        turned = self.sweep.line[2] * since_kf_s if self.sweep.moving else 0.0   # the keyframe's tilt was this less
+
+        def at(tilt):
+            return kind(replace(m, tilt_rad=tilt, height_m=hm))
+        c_lo, c0, c_hi = (disagreement(at(t0 + d), xy_k, xy_c, shutter, sway,
+                                       at_keyframe=at(t0 + d - turned) if turned else None) for d in (-h, 0.0, h))
         a, slope = (c_lo + c_hi - 2 * c0) / (2 * h * h), (c_hi - c_lo) / (2 * h)
         if not a > 0:                  # no least: no reading (TiltTrack.add refuses it)
             return 0.0, 0.0, t0, math.inf
@@ -337,14 +366,15 @@ def robust_mean(values: np.ndarray, floor: float) -> float:
     return float(robust_step(values[None, :], floor, MAD_K)[0][0])
 
 
-def disagreement(projection, xy_k, xy_c, shutter=None, sway=None, robust: bool = False) -> float:
+def disagreement(projection, xy_k, xy_c, shutter=None, sway=None, robust: bool = False, *, at_keyframe=None) -> float:
     """How much the features disagree on one step at this projection, per square metre of step
     (each feature's step over one frame interval: `shutter`, its rolling-shutter factor).
     `sway`: the sway's field at the features ((N, 2): d(s, y)/d sway, less its mean), whose
-    pattern is fitted and taken out. Robust (for the search, whose tracks were chosen at a tilt
+    pattern is fitted and taken out. `at_keyframe`: the keyframe's projection, where the camera
+    turned since (a sweep). Robust (for the search, whose tracks were chosen at a tilt
     maybe far off): the log of the median spread, so that a frame that agrees sharply somewhere
     outweighs one with a stray track."""
-    d = projection.to_wall(xy_k) - projection.to_wall(xy_c)
+    d = (at_keyframe or projection).to_wall(xy_k) - projection.to_wall(xy_c)
     if shutter is not None:
         d = d * shutter[:, None]
     if sway is not None:

@@ -152,7 +152,8 @@ class PoseEstimator:
                                  learn_only=t_s < self._warm_until or not found or not self.p.correct_pose)
             if not found:                          # read at a tilt searched for, a pitch is the tilt's
                 self.pitch_shown_rad = 0.0         # error, which its own sigma counts
-        step, lat, sens = self._correction(means, self.tilt.tau)
+        turn = self.tilt.keyframe_offset(t_s - kf.t_s)     # a camera turning: its keyframe at another tilt
+        step, lat, sens = self._correction(means, self.tilt.tau, turn)
         scale = 0.0
         if self.ride and self.ride.level_m and self._rides():    # a ride height scales the whole step
             scale = self.ride.level_m / self.projection.mount.height_m
@@ -160,8 +161,8 @@ class PoseEstimator:
         if self.tilt.auto:
             self.tilt.level_m = scale * self.projection.mount.height_m
             self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
-                                 tuple(self.s.take(_TILT_POSE)), float(moved[1].mean()) + step, sens * (1.0 + scale),
-                                 scale))
+                                 _turned(self.s.take(_TILT_POSE), turn), float(moved[1].mean()) + step,
+                                 sens * (1.0 + scale), scale))
         old = self.projection
         remount, extra = self.tilt.remount()
         if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
@@ -349,7 +350,7 @@ class PoseEstimator:
             return 0.0
         return -sum(j * c for j, c in zip(self._closing, change))
 
-    def _correction(self, means, tau):
+    def _correction(self, means, tau, turn=0.0):
         """Metres to add to the step and the lateral step, and d step/d tilt. Tilt and pitch count
         where each feature was and is; the height only as this frame's less the keyframe's (the
         scale it causes): its level is not observable, and a level that wandered would scale every
@@ -359,10 +360,17 @@ class PoseEstimator:
         xc, xk = m[2], -m[5]                       # dy/dsway where the features are and were
         self._end = (mc[1], mc[3], xc)
         pc, hc, sc, pk, hk, sk = self.s.tolist()
+        pk += turn                                 # a turning camera's keyframe: at the tilt it had then
         dh = hc - hk
         step = (mk[1] - mc[1]) * tau + mk[1] * pk - mc[1] * pc - mc[3] * dh + xk * sk - xc * sc
         lat = (mc[0] - mk[0]) * tau + mc[0] * pc - mk[0] * pk + mc[2] * dh
         return step, lat, mk[1] - mc[1]
+
+
+def _turned(pose, turn: float) -> tuple:
+    """A step's (pitch, height, keyframe pitch, keyframe height), the keyframe's pitch with the turn."""
+    pc, hc, pk, hk = pose.tolist()
+    return pc, hc, pk + turn, hk
 
 
 _EYE = [np.eye(n) for n in range(2 * N_POSE + 1)]

@@ -128,6 +128,62 @@ class TiltTrack:
         return None
 
 
+class SweepWatch:
+    """A camera turned slowly (a sweep: too slow for a step, too fast for a mount's creep). The
+    readings of the last `window_s` (at least `min_readings`, over up to twice that, none
+    `max_hole_s` apart: a stand or a gap between readings is no turn) trend along a line beyond
+    `t_sweep` of its own standard error and `min_rate_deg_s`: the tilt is moving, and is the line's
+    value now. It stops once the trend is within `t_still` of its error. On a still or shaking car
+    the trend's t stays under 3.5 (docs/odometry.md, "Sweeps"); a clean sweep at 0.75 deg/s reads 18."""
+
+    def __init__(self, window_s: float = 1.0, min_readings: int = 5, t_sweep: float = 8.0, t_still: float = 3.0,
+                 min_rate_deg_s: float = 0.3, floor_deg: float = 0.05, max_own_deg: float = 1.0,
+                 min_span_s: float = 0.5, max_hole_s: float = 0.5):
+        self.window_s, self.min_readings, self.min_span_s = window_s, min_readings, min_span_s
+        self.max_own, self.max_hole_s = math.radians(max_own_deg), max_hole_s
+        self.t_sweep, self.t_still = t_sweep, t_still
+        self.min_rate, self.floor = math.radians(min_rate_deg_s), math.radians(floor_deg)
+        self.readings: list = []          # (t, tilt) of recent readings
+        self.moving = False
+        self.line = None                  # (t, tilt then, rate, its sigma) while moving
+
+    def add(self, t_s: float, tilt: float, level: float | None = None, own_sigma: float = 0.0) -> bool:
+        """One reading; True while the camera moves (then `line` holds its fit). `level`: the same
+        reading with the keyframe at the tilt the line gave it (the rate is read from the plain
+        readings, whose lag a steady turn keeps constant: read from the corrected ones, the
+        correction fed back, and the rate ran away). A reading unsure of itself beyond
+        `max_own_deg` says nothing, and a trend over less than `min_span_s` is none: at CRF 40 five
+        keyframes of 0.14 s, each 3 deg unsure, read 25.6 to 29.8 deg on a still camera."""
+        if own_sigma > self.max_own:
+            return self.moving
+        self.readings.append((t_s, tilt, tilt if level is None else level))
+        while len(self.readings) > self.min_readings and t_s - self.readings[0][0] > self.window_s:
+            self.readings.pop(0)
+        while t_s - self.readings[0][0] > 2.0 * self.window_s:
+            self.readings.pop(0)
+        t = [r[0] for r in self.readings]
+        if (len(t) < self.min_readings or t[-1] - t[0] < self.min_span_s
+                or max(b - a for a, b in zip(t, t[1:])) > self.max_hole_s):   # a stand or a gap between: none
+            self.moving, self.line = False, None
+            return False
+        t, y, lv = np.array(self.readings).T
+        tc = t - t.mean()
+        sxx = float(tc.dot(tc))
+        rate = float(tc.dot(y)) / sxx
+        fit = y.mean() + rate * tc
+        s2 = max(float(np.sum((y - fit) ** 2)) / (len(y) - 2), self.floor ** 2)
+        t_stat = abs(rate) / math.sqrt(s2 / sxx)
+        if t_stat >= self.t_sweep and abs(rate) >= self.min_rate:
+            self.moving = True
+        elif t_stat < self.t_still:
+            self.moving = False
+        self.line = (t_s, float(lv.mean() + rate * tc[-1]), rate, math.sqrt(s2)) if self.moving else None
+        return self.moving
+
+    def reset(self):
+        self.readings, self.moving, self.line = [], False, None
+
+
 class TiltSearch:
     """Where the tilt is when nothing is known yet (a cold start, a step). Each keyframe offers the
     frame on which its features moved farthest; once `keyframes` have, the features' disagreement

@@ -682,3 +682,45 @@ def test_an_operator_reset_carries_the_ride_height_s_keyframe_into_the_new_count
     pose._kf_at = (1.4, 7.0)
     pose.new_count(-1.4)
     assert pose._kf_at == pytest.approx((0.0, 7.0))
+
+
+def test_a_sweep_is_told_from_a_still_or_shaking_camera_by_its_trend():
+    """tilt.SweepWatch: readings every 0.13 s along a turn of 2.7 deg/s (0.05 deg of noise) are a
+    sweep within a second and give its rate; a shaking car's readings, alternating 2 deg about a
+    still tilt (consecutive readings share a frame: its pitch pushes them apart), never are; the
+    sweep ends when the readings stand still again."""
+    from crawler.tilt import SweepWatch
+
+    rng = np.random.default_rng(3)
+    watch, t = SweepWatch(), 0.13 * np.arange(60)
+    turn = np.radians(24 + 2.7 * np.clip(t - 1.0, 0, 4.0) + rng.normal(0, 0.05, len(t)))
+    moving, rates = [], []
+    for ti, yi in zip(t, turn):
+        moving.append(watch.add(ti, yi))
+        rates.append(math.degrees(watch.line[2]) if watch.line else None)
+    first = moving.index(True)
+    assert t[first] < 2.2 and not any(moving[:8])
+    assert rates[first + 5] == pytest.approx(2.7, abs=0.2)
+    during = [i for i in range(first, 40) if moving[i]]
+    assert len(during) > 15
+    assert not moving[-1]                                  # 3 s after the turn ended
+    shake = SweepWatch()
+    alternating = np.radians(24 + 2.0 * (-1) ** np.arange(60) + rng.normal(0, 0.3, 60))
+    assert not any(shake.add(ti, yi) for ti, yi in zip(t, alternating))
+    # a trend over keyframes of a few frames each, or of readings unsure of themselves, is none
+    # (CRF 40 on a still camera: 25.6 -> 29.8 deg in 0.14 s, each reading 3 deg unsure)
+    burst = np.radians([25.58, 26.41, 28.06, 29.55, 29.8])
+    assert not any(SweepWatch().add(ti, yi) for ti, yi in zip(7.53 + 0.035 * np.arange(5), burst))
+    unsure = SweepWatch()
+    assert not any(unsure.add(ti, yi, None, math.radians(3.0)) for ti, yi in zip(t, turn))
+
+
+def test_tilt_auto_follows_a_camera_turned_slowly_and_does_not_read_the_turn_as_travel(render_run, crawlerd, tmp_path):
+    """A sweep (24 -> 30 deg over 3 s) is too slow for a step and too fast for a mount's creep. The
+    turn moves the view along the wall as travel does, and the epoch measured again at the tilt
+    reached took the steps before it there too: before session 20 +2.0 %, ending 0.5 deg short."""
+    run = render_run("sweep", tilt_deg=24, tilt_schedule=((1.5, 24.0), (4.5, 30.0)), speed_m_s=0.2,
+                     duration_s=6.0, seed=75)
+    s, rows, truth = replay(crawlerd, run, tmp_path, "--tilt", "auto")
+    assert abs(s["pose"]["tilt_deg"] - 30.0) < 0.3
+    assert 100 * abs(s["distance_m"] - run["truth"]["true_distance_m"]) / run["truth"]["path_length_m"] < 0.5
