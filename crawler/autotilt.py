@@ -54,6 +54,7 @@ class Hop:
     d: float                 # the step as it stands in the distance now
     g: float                 # d step / d tilt
     scale: float = 0.0       # the ride height's scale of the step (crawler/ride.py): kept when measured again
+    turn: float = 0.0        # a sweep's keyframe tilt less the frame's (in pose's keyframe pitch too)
 
 
 class FixedTilt:
@@ -87,6 +88,8 @@ class FixedTilt:
 
     def keyframe_offset(self, since_kf_s: float) -> float:
         return 0.0
+
+    turning = False           # a sweep under way (AutoTilt)
 
 
 class AutoTilt(FixedTilt):
@@ -200,6 +203,8 @@ class AutoTilt(FixedTilt):
         gap's, which crawler/gaps.py bridges with the motion model."""
         self._after_break = self._after_break or not continuous
         self._kf_t = t_s
+        if not continuous:            # lost frames: a turn may have become anything (a step is found afresh)
+            self.sweep.reset()
         if self._last is not None and not self.sweep.moving:   # a step measured while the camera turned
             self.hops.append(self._last)                          # stays at the tilt it had
             del self.hops[:-self.p.max_hops]
@@ -234,6 +239,8 @@ class AutoTilt(FixedTilt):
         """The keyframe's tilt less this frame's, while the camera turns (radians): a turn moves
         the whole view along the wall as travel does (24 to 40 deg: ~9 cm at the wall)."""
         return -self.sweep.line[2] * since_kf_s if self.sweep.moving else 0.0
+
+    turning = property(lambda self: self.sweep.moving)
 
     # -- internals ----------------------------------------------------------------------------------
 
@@ -274,15 +281,15 @@ class AutoTilt(FixedTilt):
         if self.track is None or closing is None:
             return
         a, slope, at, sigma = self._reading(*closing[:4])
-        level = None
-        if self.sweep.moving:                              # the keyframe at the tilt the turn gave it
-            a1, s1, at1, _ = self._reading(*closing)
-            level = at1 - s1 / (2 * a1) if a1 > 0 else None
+        turning, corrected = self.sweep.moving, None
+        if turning:                                        # the keyframe at the tilt the turn gave it
+            corrected = self._reading(*closing)
+        level = corrected[2] - corrected[1] / (2 * corrected[0]) if corrected and corrected[0] > 0 else None
         if a > 0 and self.sweep.add(t_s, at - slope / (2 * a), level, sigma):
             t0, tilt0, rate, s = self.sweep.line          # the camera turns: the steps so far stay at the
             self.hops = []                                 # tilt they were measured with, and the tilt is the
-            self.track = TiltTrack(tilt0, self.p.tilt, s)  # line's (a fresh track: it ends where the turn does)
-            self.tau = tilt0 - self.projection.mount.tilt_rad
+            self.track = TiltTrack(tilt0, self.p.tilt, s, checked=True)   # line's (a fresh track, which
+            self.tau = tilt0 - self.projection.mount.tilt_rad              # checks its first reading for a step)
             return
         began = self.track.add(a, slope, at, t_s, sigma)
         if began is None:
@@ -330,8 +337,8 @@ class AutoTilt(FixedTilt):
         """The hop's step at the new mount: the change in metres. Its pitch and height are kept when
         the tilt moved little; read at a tilt far off, they were the tilt's error, and are dropped."""
         old = hop.projection
-        if far_apart(old, new, self.p.found_sigma_deg):
-            hop.pose = (0.0, 0.0, 0.0, 0.0)
+        if far_apart(old, new, self.p.found_sigma_deg):   # (a turn's keyframe tilt is no error: kept)
+            hop.pose = (0.0, 0.0, hop.turn, 0.0)
         wk0, wk1 = old.to_wall(hop.xy_k), new.to_wall(hop.xy_k)
         wc0, wc1 = old.to_wall(hop.xy_c), new.to_wall(hop.xy_c)
         dy = hop.dy + (wk1[:, 1] - wk0[:, 1]) - (wc1[:, 1] - wc0[:, 1])

@@ -146,6 +146,10 @@ class PoseEstimator:
             # the ride height, decided once per tilt found: a bank's rise moves the estimate by ~1 deg,
             # and a gate on the estimate closed on the climb and lost it (29.5 deg: +1.55 %)
             self._riding = found and abs(self.tilt_deg) <= self.p.ride_max_tilt_deg
+        if self.tilt.turning:                      # ...and again once a sweep has turned it
+            self._riding = None
+        elif self._riding is None:
+            self._riding = found and abs(self.tilt_deg) <= self.p.ride_max_tilt_deg
         self._found = found
         if any(self._limit):                       # pitch, height or sway estimated at all
             base += self._filter(hh, hz, zz, c.sigma, 2 * len(idx), t_s - kf.t_s,
@@ -162,7 +166,7 @@ class PoseEstimator:
             self.tilt.level_m = scale * self.projection.mount.height_m
             self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
                                  _turned(self.s.take(_TILT_POSE), turn), float(moved[1].mean()) + step,
-                                 sens * (1.0 + scale), scale))
+                                 sens * (1.0 + scale), scale, turn))
         old = self.projection
         remount, extra = self.tilt.remount()
         if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
@@ -173,7 +177,7 @@ class PoseEstimator:
     def _rides(self) -> bool:
         """The ride height is read and applied: at a tilt found (tilt auto) and, when it was found,
         not beyond where its readings hold (at 40 deg they drift alike and the chain sums them)."""
-        return self._found and self._riding
+        return self._found and bool(self._riding)
 
     def _shutter(self, kf, idx, pts, t_s):
         """Each track's rolling-shutter factor: the frame interval over the time between the two

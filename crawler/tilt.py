@@ -73,8 +73,9 @@ class TiltTrack:
     the lag-one covariance, but at least a tenth of the scatter (the covariance is itself read from
     few readings)."""
 
-    def __init__(self, value: float, params: TiltParams | None = None, sigma: float = 0.0):
+    def __init__(self, value: float, params: TiltParams | None = None, sigma: float = 0.0, checked: bool = False):
         self.p = params or TiltParams()
+        self._checked = checked               # the value is known (a sweep's line): a jump counts at once
         self.detector = StepDetector(self.p)
         self.ref = self.value = value
         self._a = self._b = 0.0               # summed parabola, in (tilt - ref)
@@ -98,7 +99,7 @@ class TiltTrack:
         raw = at - slope / (2 * a)
         jump = max(math.radians(self.p.jump_deg), self.p.jump_sigmas * math.sqrt(self._scatter))
         least = float(np.clip(raw, self.value - jump, self.value + jump))
-        if self._n >= 3:
+        if self._n >= 3 or self._checked:
             side = 0 if abs(raw - self.value) <= jump else (1 if raw > self.value else -1)
             if side:                               # no mount creeps this far in a keyframe: a turn, if
                 if abs(raw - self.value) <= self.p.own_sigmas * sigma:
@@ -108,6 +109,7 @@ class TiltTrack:
                 self._jumped = (side, t_s)
                 return None
             self._jumped = (0, t_s)
+        if self._n >= 3:
             nu = (least - self.value) / math.sqrt(self._scatter + self.var)
             began = self.detector.update(nu, t_s)
             if began is not None:
@@ -143,8 +145,10 @@ class SweepWatch:
         self.max_own, self.max_hole_s = math.radians(max_own_deg), max_hole_s
         self.t_sweep, self.t_still = t_sweep, t_still
         self.min_rate, self.floor = math.radians(min_rate_deg_s), math.radians(floor_deg)
-        self.readings: list = []          # (t, tilt) of recent readings
+        self.readings: list = []          # (t, tilt, level) of recent readings
         self.moving = False
+        self.off_line = math.radians(0.5)
+        self._misses = 0                  # plain readings in a row off the line while moving
         self.line = None                  # (t, tilt then, rate, its sigma) while moving
 
     def add(self, t_s: float, tilt: float, level: float | None = None, own_sigma: float = 0.0) -> bool:
@@ -156,6 +160,13 @@ class SweepWatch:
         keyframes of 0.14 s, each 3 deg unsure, read 25.6 to 29.8 deg on a still camera."""
         if own_sigma > self.max_own:
             return self.moving
+        if self.moving and self._off_line(t_s, tilt):   # the turn stopped (or jumped): over
+            self._misses += 1
+            if self._misses >= 2:
+                self.readings = self.readings[-1:]
+                self.moving, self.line, self._misses = False, None, 0
+        else:
+            self._misses = 0
         self.readings.append((t_s, tilt, tilt if level is None else level))
         while len(self.readings) > self.min_readings and t_s - self.readings[0][0] > self.window_s:
             self.readings.pop(0)
@@ -180,8 +191,16 @@ class SweepWatch:
         self.line = (t_s, float(lv.mean() + rate * tc[-1]), rate, math.sqrt(s2)) if self.moving else None
         return self.moving
 
+    def _off_line(self, t_s: float, tilt: float) -> bool:
+        """A plain reading beyond max(4 of the line's sigmas, 0.5 deg) off the line through the plain
+        readings: a turn that has stopped (the fitted rate rose as the lag went, and the tilt ran
+        on past the end: 43.5 deg for 40) or jumped."""
+        t, y = np.array([r[0] for r in self.readings]), np.array([r[1] for r in self.readings])
+        rate, s = self.line[2], self.line[3]
+        return abs(tilt - (y.mean() + rate * (t_s - t.mean()))) > max(4.0 * s, self.off_line)
+
     def reset(self):
-        self.readings, self.moving, self.line = [], False, None
+        self.readings, self.moving, self.line, self._misses = [], False, None, 0
 
 
 class TiltSearch:

@@ -724,3 +724,47 @@ def test_tilt_auto_follows_a_camera_turned_slowly_and_does_not_read_the_turn_as_
     s, rows, truth = replay(crawlerd, run, tmp_path, "--tilt", "auto")
     assert abs(s["pose"]["tilt_deg"] - 30.0) < 0.3
     assert 100 * abs(s["distance_m"] - run["truth"]["true_distance_m"]) / run["truth"]["path_length_m"] < 0.5
+
+
+def test_a_sweep_ends_with_the_turn_and_a_jump_after_it_is_a_step():
+    """SweepWatch ends a sweep once two plain readings in a row leave its line (the fitted rate
+    rose as the readings' lag went, and the tilt ran on past the turn's end: 43.5 deg for 40, a
+    review); the track it hands on checks its first readings for a step (a turn that ends in a
+    jump of the camera ran to 49.9 deg for 40 when the jump was averaged in)."""
+    from crawler.tilt import SweepWatch, TiltTrack
+
+    watch, t = SweepWatch(), 0.13 * np.arange(60)
+    turn = np.radians(24 + 2.7 * np.clip(t - 1.0, 0, 4.0))
+    moving = [watch.add(ti, yi) for ti, yi in zip(t, turn)]
+    after = [ti for ti, m in zip(t, moving) if ti > 5.0 and not m]
+    assert any(moving) and after and after[0] < 5.75
+    track = TiltTrack(math.radians(40.0), sigma=math.radians(0.05), checked=True)
+    jumped = math.radians(50.0)
+    assert track.add(1.0, 0.0, jumped, 6.0, 0.001) is None and math.degrees(track.value) == pytest.approx(40.0)
+    assert track.add(1.0, 0.0, jumped, 6.1, 0.001) is not None          # two in a row: a step
+
+
+def test_lost_frames_end_a_sweep_and_a_far_remount_keeps_a_turn_s_keyframe_tilt():
+    """A gap may hide anything (a step is found afresh after it), so the sweep watch starts over;
+    and a step measured again at a tilt far off drops its pitch and height as the old tilt's
+    error, but not the keyframe tilt a sweep gave it (dropped, each such remount added 4-5 mm)."""
+    from crawler.autotilt import AutoTilt, Hop
+    from crawler.geometry import make_projection
+    from crawler.measurement import recording_camera, thesis_roi
+
+    cam = recording_camera(S.CameraSettings())
+    roi = thesis_roi(cam.width, cam.height)
+    proj = make_projection("cylinder", S.MountSettings(tilt_deg=24.0).mount())
+    tilt = AutoTilt(cam, proj, roi)
+    for i in range(6):
+        tilt.sweep.add(0.13 * i, math.radians(24 + 0.3 * i))
+    assert tilt.sweep.readings
+    tilt.closed(False, 1.0)
+    assert not tilt.sweep.readings and not tilt.turning
+    rng = np.random.default_rng(5)
+    px = np.column_stack([roi[0] + rng.uniform(0, roi[2], 20), roi[1] + rng.uniform(0, roi[3] / 2, 20)])
+    xy = cam.normalise(px)
+    hop = Hop(1.0, proj, xy, xy, np.zeros(20), (0.001, 0.0005, 0.004, 0.0), 0.0, 0.0, turn=0.003)
+    far = make_projection("cylinder", S.MountSettings(tilt_deg=27.0).mount())
+    tilt._measure_again(hop, far)
+    assert hop.pose == (0.0, 0.0, 0.003, 0.0)
