@@ -45,7 +45,7 @@ class PoseParams:
     sway_sigma_mm: float = 2.0        # the car's weave across the pipe ([odometry] sway_mm); 0: not estimated
     sway_tau_s: float = 1.0
     ride_height: bool = False         # the ride height's level from the height changes ([odometry] ride_height)
-    ride_max_tilt_deg: float = math.inf   # ...read and applied only up to this tilt (tilt auto's default: ride.MAX_TILT_DEG)
+    ride_max_tilt_deg: float = math.inf   # ...only at a tilt found up to this (tilt auto's default: ride.MAX_TILT_DEG)
     correct_pose: bool = True         # False: pitch, height and sway only read, for the ride height (tilt auto)
     noise_scale: float = 4.0          # a feature's error persists over its keyframe's frames: count each ~1/16
     level_memory_s: float = 2.0       # how long the pitch and bounce the tracks show are remembered

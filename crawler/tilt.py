@@ -75,7 +75,8 @@ class TiltTrack:
 
     def __init__(self, value: float, params: TiltParams | None = None, sigma: float = 0.0, checked: bool = False):
         self.p = params or TiltParams()
-        self._checked = checked               # the value is known (a sweep's line): a jump counts at once
+        self._checked = checked               # the value is known (a sweep's line): a jump counts from
+                                              # the first reading (two in a row beyond it: a step)
         self.detector = StepDetector(self.p)
         self.ref = self.value = value
         self._a = self._b = 0.0               # summed parabola, in (tilt - ref)
@@ -135,26 +136,27 @@ class SweepWatch:
     readings of the last `window_s` (at least `min_readings`, over up to twice that, none
     `max_hole_s` apart: a stand or a gap between readings is no turn) trend along a line beyond
     `t_sweep` of its own standard error and `min_rate_deg_s`: the tilt is moving, and is the line's
-    value now. It stops once the trend is within `t_still` of its error. On a still or shaking car
+    value now. It stops once the trend is within `t_still` of its error, or two plain readings in a
+    row leave the line by max(4 of its sigmas, `off_line_deg`). On a still or shaking car
     the trend's t stays under 3.5 (docs/odometry.md, "Sweeps"); a clean sweep at 0.75 deg/s reads 18."""
 
     def __init__(self, window_s: float = 1.0, min_readings: int = 5, t_sweep: float = 8.0, t_still: float = 3.0,
                  min_rate_deg_s: float = 0.3, floor_deg: float = 0.05, max_own_deg: float = 1.0,
-                 min_span_s: float = 0.5, max_hole_s: float = 0.5):
+                 min_span_s: float = 0.5, max_hole_s: float = 0.5, off_line_deg: float = 0.5):
         self.window_s, self.min_readings, self.min_span_s = window_s, min_readings, min_span_s
         self.max_own, self.max_hole_s = math.radians(max_own_deg), max_hole_s
         self.t_sweep, self.t_still = t_sweep, t_still
         self.min_rate, self.floor = math.radians(min_rate_deg_s), math.radians(floor_deg)
         self.readings: list = []          # (t, tilt, level) of recent readings
         self.moving = False
-        self.off_line = math.radians(0.5)
+        self.off_line = math.radians(off_line_deg)
         self._misses = 0                  # plain readings in a row off the line while moving
         self.line = None                  # (t, tilt then, rate, its sigma) while moving
 
     def add(self, t_s: float, tilt: float, level: float | None = None, own_sigma: float = 0.0) -> bool:
         """One reading; True while the camera moves (then `line` holds its fit). `level`: the same
         reading with the keyframe at the tilt the line gave it (the rate is read from the plain
-        readings, whose lag a steady turn keeps constant: read from the corrected ones, the
+        readings, whose lag a steady turn keeps nearly constant: read from the corrected ones, the
         correction fed back, and the rate ran away). A reading unsure of itself beyond
         `max_own_deg` says nothing, and a trend over less than `min_span_s` is none: at CRF 40 five
         keyframes of 0.14 s, each 3 deg unsure, read 25.6 to 29.8 deg on a still camera."""
