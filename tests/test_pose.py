@@ -727,10 +727,9 @@ def test_tilt_auto_follows_a_camera_turned_slowly_and_does_not_read_the_turn_as_
 
 
 def test_a_sweep_ends_with_the_turn_and_a_jump_after_it_is_a_step():
-    """SweepWatch ends a sweep once two plain readings in a row leave its line (the fitted rate
-    rose as the readings' lag went, and the tilt ran on past the turn's end: 43.5 deg for 40, a
-    review); the track it hands on checks its first readings for a step (a turn that ends in a
-    jump of the camera ran to 49.9 deg for 40 when the jump was averaged in)."""
+    """SweepWatch ends a sweep within 0.75 s of the turn's end (a review saw the tilt run on past
+    it: 43.5 deg for 40); the track it hands on checks its first readings for a step (a turn that
+    ended in a jump of the camera ran to 49.9 deg for 40 when the jump was averaged in)."""
     from crawler.tilt import SweepWatch, TiltTrack
 
     watch, t = SweepWatch(), 0.13 * np.arange(60)
