@@ -205,7 +205,7 @@ class PoseEstimator:
         """What the daemon's status says of the pose (docs/topics.md)."""
         auto = self.tilt.auto
         return {**self.frame(), "tilt_sigma_deg": finite_round(math.degrees(self.tilt.sigma_rad), 3) if auto else None,
-                "tilt_auto": auto, "tilt_steps": self.tilt.steps}
+                "tilt_auto": auto, "tilt_steps": self.tilt.steps, "tilt_turning": self.tilt.turning}
 
     def frame(self) -> dict:
         """What each published estimate says of the pose: the camera's tilt, pitch and height now."""

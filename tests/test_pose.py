@@ -722,7 +722,7 @@ def test_tilt_auto_follows_a_camera_turned_slowly_and_does_not_read_the_turn_as_
     run = render_run("sweep", tilt_deg=24, tilt_schedule=((1.5, 24.0), (4.5, 30.0)), speed_m_s=0.2,
                      duration_s=6.0, seed=75)
     s, rows, truth = replay(crawlerd, run, tmp_path, "--tilt", "auto")
-    assert abs(s["pose"]["tilt_deg"] - 30.0) < 0.3
+    assert abs(s["pose"]["tilt_deg"] - 30.0) < 0.3 and s["pose"]["tilt_turning"] is False   # over by the end
     assert 100 * abs(s["distance_m"] - run["truth"]["true_distance_m"]) / run["truth"]["path_length_m"] < 0.5
 
 
@@ -767,3 +767,18 @@ def test_lost_frames_end_a_sweep_and_a_far_remount_keeps_a_turn_s_keyframe_tilt(
     far = make_projection("cylinder", S.MountSettings(tilt_deg=27.0).mount())
     tilt._measure_again(hop, far)
     assert hop.pose == (0.0, 0.0, 0.003, 0.0)
+
+
+def test_the_status_says_while_the_camera_is_being_turned():
+    from crawler.geometry import make_projection
+    from crawler.measurement import recording_camera, thesis_roi
+    from crawler.pose import PoseEstimator, PoseParams
+
+    cam = recording_camera(S.CameraSettings())
+    pose = PoseEstimator(cam, make_projection("cylinder", S.MountSettings(tilt_deg=24.0).mount()),
+                         thesis_roi(cam.width, cam.height), PoseParams(auto_tilt=True))
+    assert pose.status()["tilt_turning"] is False
+    t = 0.13 * np.arange(8)
+    for ti in t:                                           # a clean turn at 2.7 deg/s
+        pose.tilt.sweep.add(ti, math.radians(24 + 2.7 * ti))
+    assert pose.status()["tilt_turning"] is True
