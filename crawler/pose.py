@@ -145,7 +145,7 @@ class PoseEstimator:
             self._relearn()
             # the ride height, decided once per tilt found: a bank's rise moves the estimate by ~1 deg,
             # and a gate on the estimate closed on the climb and lost it (29.5 deg: +1.55 %)
-            self._riding = found and abs(self.tilt_deg) <= self.p.ride_max_tilt_deg
+            self._riding = None
         if self.tilt.turning:                      # ...and again once a sweep has turned it
             self._riding = None
         elif self._riding is None:
