@@ -142,7 +142,7 @@ def height_verdict(configured, estimator, tol_m: float, fix: list) -> dict:
 
 def height_search(kind, mount, samples) -> float:
     """The camera height at which the features across the pipe agree best on their steps."""
-    from .autotilt import disagreement
+    from .tiltfit import disagreement
 
     def cost(h):
         return sum(disagreement(kind(replace(mount, height_m=float(h))), *s) for s in samples)

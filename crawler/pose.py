@@ -27,7 +27,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop, far_apart
+from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop
+from .tiltfit import far_apart
 from .estimate import finite_round
 from .posemodel import (HEIGHT, K_HEIGHT, K_PITCH, K_SWAY, MODEL, MODEL_FLAT, N_POSE, PITCH, SWAY, height_change,
                         least_squares)
