@@ -1,6 +1,6 @@
 """The camera's pose from the flow (issue 14): tilt auto, a tilt step, shake runs. Prints figures.
 
-    python benchmarks/pose.py [--out DIR] [--jobs N] [--only tilt,table,step,sweep,shake,ride,fixed,both] [--markdown]
+    python benchmarks/pose.py [--out DIR] [--jobs N] [--only tilt,table,step,sweep,stand,shake,ride,fixed,both] [--markdown]
 
 Every case is an hw_sim recording (cached in --out, with the true tilt and camera height per frame
 in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
@@ -11,6 +11,8 @@ in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
 - step:  the operator turns the camera 24 -> 40 deg mid-run (a step and a 0.3 s turn), tilt auto;
 - sweep: the operator turns it slowly (24 -> 40 deg over 6 s, 24 -> 30 over 8 s, 40 -> 10 over 3 s,
          and 24 -> 34 over 4 s on a shaking car), tilt auto;
+- stand: the crawler stops, the operator turns the camera (over 2 s, 0.3 s, 1.5 s; out and back;
+         on a shaking car) and drives on, tilt auto;
 - shake: suspension bounce, pitch jitter, roll and sway at several tilts and speeds: configured
          tilt with the pose estimator on (shake) and off (shake-off, the default), and tilt auto: final error and the worst deviation from the
          true trajectory mid-run, in % of the path (and of the path so far, after its first 0.2 m);
@@ -60,6 +62,17 @@ SWEEP_CASES = {                           # the operator turns the camera slowly
                             seed=73),
     "sweep-shake-24-34-0.2": dict(tilt_deg=24, tilt_schedule=((3.0, 24.0), (7.0, 34.0)), speed_m_s=0.2,
                                   duration_s=10, seed=74, **SHAKE),
+}
+STAND = dict(profile="stopgo", stopgo_period_s=6.0, stopgo_dwell_s=3.0, duration_s=11.0)   # stands 3-6 s
+STAND_CASES = {                           # the operator stops, turns the camera to inspect, drives on
+    "stand-turn-24-34": dict(tilt_deg=24, tilt_schedule=((3.5, 24.0), (5.5, 34.0)), speed_m_s=0.3, seed=81, **STAND),
+    "stand-turn-fast-24-34": dict(tilt_deg=24, tilt_schedule=((4.0, 24.0), (4.3, 34.0)), speed_m_s=0.3, seed=82,
+                                  **STAND),
+    "stand-turn-40-20": dict(tilt_deg=40, tilt_schedule=((3.4, 40.0), (4.9, 20.0)), speed_m_s=0.2, seed=83, **STAND),
+    "stand-turn-back-24-34": dict(tilt_deg=24, tilt_schedule=((3.3, 24.0), (4.3, 34.0), (4.8, 34.0), (5.6, 24.0)),
+                                  speed_m_s=0.3, seed=84, **STAND),
+    "stand-turn-shake-24-36": dict(tilt_deg=24, tilt_schedule=((3.5, 24.0), (5.0, 36.0)), speed_m_s=0.25, seed=85,
+                                   **STAND, **SHAKE),
 }
 SHAKE_CASES = {
     **{f"shake-{t}deg-{v}": dict(tilt_deg=t, speed_m_s=v, duration_s=d, seed=50 + t, **SHAKE)
@@ -152,6 +165,8 @@ def jobs(out: Path, only: set) -> list:
         todo += [(out, "step-fixed", n, f, ["mount.tilt_deg=24"]) for n, f in STEP_CASES.items()]
     if "sweep" in only:
         todo += [(out, "sweep", n, f, ["mount.tilt_deg=auto"]) for n, f in SWEEP_CASES.items()]
+    if "stand" in only:
+        todo += [(out, "stand", n, f, ["mount.tilt_deg=auto"]) for n, f in STAND_CASES.items()]
     if "shake" in only:
         for n, f in SHAKE_CASES.items():
             tilt = f"mount.tilt_deg={f['tilt_deg']}"
@@ -207,7 +222,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=str(ROOT / "out" / "pose"), help="where rendered runs are cached")
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--only", default="tilt,table,step,sweep,shake,ride,fixed")
+    ap.add_argument("--only", default="tilt,table,step,sweep,stand,shake,ride,fixed")
     ap.add_argument("--cases", help="comma-separated subset of the case names")
     ap.add_argument("--markdown", action="store_true")
     args = ap.parse_args(argv)

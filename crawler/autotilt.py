@@ -22,11 +22,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .camturn import CameraTurn, TurnParams, turned_before
+from .consensus import LATERAL_AXIAL, robust_step
 from .odometry_params import OdometryParams
 from .posefield import JacobianField
 from .tilt import SweepWatch, TiltParams, TiltSearch, TiltTrack
-from .tiltfit import disagreement, far_apart, not_stray, robust_mean
-
+from .tiltfit import MAD_K, disagreement, far_apart, not_stray, robust_mean
+from .tiltport import FixedTilt, Hop
 
 
 @dataclass(frozen=True)
@@ -37,57 +39,7 @@ class AutoTiltParams:
     reading_half_deg: float = 0.5     # a reading's three tilts: the estimate and this either side
     max_hops: int = 400               # steps of an epoch kept to be measured again
     tilt: TiltParams = TiltParams()
-
-
-@dataclass
-class Hop:
-    """A closed keyframe step of the epoch, kept to be measured again at a better tilt."""
-
-    t_s: float
-    projection: object
-    xy_k: np.ndarray
-    xy_c: np.ndarray
-    dy: np.ndarray           # per-feature axial displacement the odometer measured
-    pose: tuple              # (pitch, height, keyframe pitch, keyframe height) used
-    d: float                 # the step as it stands in the distance now
-    g: float                 # d step / d tilt
-    scale: float = 0.0       # the ride height's scale of the step (crawler/ride.py): kept when measured again
-    turn: float = 0.0        # a sweep's keyframe tilt less the frame's (in pose's keyframe pitch too)
-
-
-class FixedTilt:
-    """The configured tilt: the mount never moves."""
-
-    auto = False
-    tau = 0.0
-    level_m = 0.0             # the ride height's level the readings are taken at (AutoTilt)
-    sigma_rad = 0.0
-    distance_sigma_m = 0.0    # what the tilt's uncertainty leaves in the distance: none, configured
-    steps = 0
-
-    def __init__(self, camera, projection, roi):
-        self.projection = projection
-        self.field = JacobianField(camera, projection, roi)
-
-    def update(self, serial, xy_k, xy_c, moved_px, t_s, shutter=None) -> float:
-        return 0.0
-
-    def record(self, hop: Hop):
-        pass
-
-    def new_count(self):
-        pass
-
-    def closed(self, continuous: bool, t_s: float):
-        pass
-
-    def remount(self):
-        return None, 0.0
-
-    def keyframe_offset(self, since_kf_s: float) -> float:
-        return 0.0
-
-    turning = False           # a sweep under way (AutoTilt)
+    turn: TurnParams = TurnParams()   # a camera turned at a stand (crawler/camturn.py)
 
 
 class AutoTilt(FixedTilt):
@@ -112,6 +64,8 @@ class AutoTilt(FixedTilt):
         self.steps = 0
         self._kf_t = 0.0              # when the current keyframe was taken
         self.sweep = SweepWatch()     # a camera turned slowly: followed, the steps behind it left as measured
+        self.turn = CameraTurn(self.p.turn)   # ...or turned while the crawler stands: solved frame by frame
+        self._turn_over = False       # a turn just ended: the mount moves to the tilt it reached
         self._spread = self._scale_spread(self.p.tilt.start_sigma_deg)   # while the search has found nothing
         self._sensitivity = 0.0       # d(distance)/d(tilt) of the epoch's steps, once found
         # the odometer's inlier floor in metres at the ROI's centre (roughly: a floor, not a measure)
@@ -128,6 +82,9 @@ class AutoTilt(FixedTilt):
         metres the epoch's closed steps gain from a changed estimate. `shutter`: each track's
         rolling-shutter factor (the frame interval over the time between its two exposures): a
         rolling shutter moves the rows by different times, which would read as tilt."""
+        if self.turn.on:              # the turn's frames are solved in follow_turn
+            self._serial, self._closing = serial, None
+            return 0.0
         if shutter is None:
             shutter = np.ones(len(xy_k))
         before = self.tau
@@ -199,6 +156,14 @@ class AutoTilt(FixedTilt):
         frames (a turn of the camera loses every track) starts what a step found later may span:
         the steps before it were measured at the tilt before the turn, and its first step is the
         gap's, which crawler/gaps.py bridges with the motion model."""
+        if not continuous:
+            self.turn.forget()
+        if self.turn.on:
+            if continuous:
+                self.turn.keyframe()
+            else:                     # lost frames while the camera turned: the tilt it reached is unknown
+                self.turn.end()
+                self._search_again(self.turn.tilt)
         self._after_break = self._after_break or not continuous
         self._kf_t = t_s
         if not continuous:            # lost frames: a turn may have become anything (a step is found afresh)
@@ -221,14 +186,16 @@ class AutoTilt(FixedTilt):
     def remount(self):
         """Beyond remount_deg, move the mount to the estimate and measure the epoch again there:
         (the new projection or None, metres the distance gains). A provisional tilt (`_guess`)
-        moves it as a found one would."""
+        moves it as a found one would. A turn's steps were solved at their tilts: none measured again."""
+        if self.turn.on or self._turn_over:
+            due, self._turn_over = self._turn_over, False
+            if not due and abs(self.tau) <= math.radians(self.p.turn.remount_deg):
+                return None, 0.0
+            return self._move_mount(), 0.0
         sigma = self.sigma_rad if self.track is not None or self._guessed is None else math.radians(self.p.found_sigma_deg)
         if abs(self.tau) <= max(math.radians(self.p.remount_deg), 2 * sigma):   # not noise
             return None, 0.0
-        m = self.projection.mount
-        new = type(self.projection)(replace(m, tilt_rad=m.tilt_rad + self.tau))
-        self.projection, self.field = new, JacobianField(self.camera, new, self.roi)
-        self.tau = 0.0
+        new = self._move_mount()
         hops = [h for h in self.hops + [self._last] if h is not None and h.t_s != self._break_t]
         extra = sum(self._measure_again(h, new) for h in hops)
         return new, extra
@@ -238,7 +205,55 @@ class AutoTilt(FixedTilt):
         the whole view along the wall as travel does (24 to 40 deg: ~9 cm at the wall)."""
         return -self.sweep.line[2] * since_kf_s if self.sweep.moving else 0.0
 
-    turning = property(lambda self: self.sweep.moving)
+    turning = property(lambda self: self.sweep.moving or self.turn.on)
+
+    def follow_turn(self, serial, xy_k, xy_c, read, t_s):
+        """A camera turned at a stand (crawler/camturn.py): `read` is the frame's pitch against its
+        keyframe `serial`, its sigma and the share of the step it explains (None while a turn is followed).
+        The frame's (step, lateral step) with the turn solved, or None: no turn. The steps before it
+        stay at the tilt they were measured with; once the tilt holds still, its readings go on from
+        the tilt reached, checked for a step (a turn solved wrong is searched for again)."""
+        m = self.projection.mount
+        kind, hm = type(self.projection), m.height_m + self.level_m
+        earlier = 0.0
+        if not self.turn.on:
+            if self.track is None or read is None or not self.turn.offer(serial, *read):
+                return None
+            earlier, turned = self._turned_before(lambda tilt: kind(replace(m, tilt_rad=tilt, height_m=hm)))
+            self.turn.start(m.tilt_rad + self.tau + turned, read[0], t_s)
+            self.hops, self._last, self._closing = [], None, None
+            self.sweep.reset()
+        d = self.turn.frame(lambda tilt: kind(replace(m, tilt_rad=tilt, height_m=hm)), xy_k, xy_c, t_s)
+        if d is None:                 # the features no longer tell the turn: the tilt is searched for
+            self.turn.end()
+            self._search_again(self.turn.tilt)
+            return None
+        self.tau = self.turn.tilt - m.tilt_rad
+        if self.turn.still(t_s):
+            self.track = TiltTrack(self.turn.tilt, self.p.tilt, self.turn.end(), checked=True)
+            self.steps += 1
+            self._turn_over = True
+        (lat, step), _, _ = robust_step(d.T * LATERAL_AXIAL, self._floor_m, MAD_K)
+        return float(step), float(lat), earlier
+
+    def _turned_before(self, at, most: int = 10) -> tuple[float, float]:
+        """A turn found: the steps closed just before it (each on the next one's first frame) began
+        it while it was too small to tell; solved again with it where it shows. (Metres the distance
+        gains, the turn they hold.)"""
+        chain, start = [], self._kf_t
+        for hop in reversed(self.hops[-most:]):
+            if hop.t_s != start:
+                break
+            chain.append(hop)
+            start = hop.kf_t_s
+        gained = turned = 0.0
+        for hop in reversed(chain):
+            solved = turned_before(at, hop.projection.mount.tilt_rad + self.tau + turned, hop.xy_k, hop.xy_c,
+                                   self.p.turn)
+            if solved is not None:
+                (_, step), _, _ = robust_step(solved[1].T * LATERAL_AXIAL, self._floor_m, MAD_K)
+                gained, turned = gained + float(step) - hop.d, turned + solved[0]
+        return gained, turned
 
     # -- internals ----------------------------------------------------------------------------------
 
@@ -293,13 +308,24 @@ class AutoTilt(FixedTilt):
         if began is None:
             self.tau = self.track.value - self.projection.mount.tilt_rad
             return
-        self.steps += 1
         self.hops = [h for h in self.hops if h.t_s >= began and h.t_s > self._break_t]   # the tilt was right
-        centre = self.projection.mount.tilt_rad + self.tau
-        self.search = TiltSearch(centre, 3 * math.radians(self.p.tilt.start_sigma_deg))   # a turn: anywhere
+        self._search_again(self.projection.mount.tilt_rad + self.tau)
+
+    def _search_again(self, centre: float):
+        """A step of the camera: its tilt searched for afresh about `centre` (a turn: anywhere)."""
+        self.steps += 1
+        self.search = TiltSearch(centre, 3 * math.radians(self.p.tilt.start_sigma_deg))
         self.track = None
         self.sweep.reset()
         self._spread = self._scale_spread(self.p.tilt.step_sigma_deg)
+
+    def _move_mount(self):
+        """The mount moved to the estimate: the new projection."""
+        m = self.projection.mount
+        new = type(self.projection)(replace(m, tilt_rad=m.tilt_rad + self.tau))
+        self.projection, self.field = new, JacobianField(self.camera, new, self.roi)
+        self.tau = 0.0
+        return new
 
     def _reading(self, moved_px, xy_k, xy_c, shutter, since_kf_s: float = 0.0):
         """The parabola through the disagreement at the estimate and either side of it: (curvature,
@@ -348,4 +374,3 @@ class AutoTilt(FixedTilt):
             return 0.0
         change, hop.d, hop.g, hop.projection, hop.dy = d - hop.d, d, float(jk[1] - jc[1]) * ride, new, dy
         return change
-

@@ -39,6 +39,17 @@ def robust_step(values: np.ndarray, floor: float, k: float):
     return values.dot(inl.astype(values.dtype)) / n_in, inl, sigma
 
 
+def shutter_factors(camera, kf, idx, rows_px, t_s: float):
+    """Each track's rolling-shutter factor: the frame interval over the time between the two
+    exposures of its feature (rows read later moved for longer), as rolling_shutter scales them;
+    None without a rolling shutter. `rows_px`: the tracks' frame rows now."""
+    dt = t_s - kf.t_s
+    if camera.readout_s <= 0 or dt <= 0:
+        return None
+    span = dt + camera.row_time(rows_px) - kf.row_t.take(idx)
+    return dt / np.maximum(span, 0.2 * dt)
+
+
 def rolling_shutter(moved, idx, pts, dt: float, row_t_now, row_t_kf, min_span_share: float):
     """Per-feature displacements at the frames' reference times: a feature's displacement spans
     dt plus its change of row time. A feature exposed over less than min_span_share of dt is

@@ -27,13 +27,16 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .autotilt import AutoTilt, AutoTiltParams, FixedTilt, Hop
-from .tiltfit import far_apart
+from .autotilt import AutoTilt, AutoTiltParams
+from .camturn import turn_read
+from .consensus import shutter_factors
 from .estimate import finite_round
 from .posemodel import (HEIGHT, K_HEIGHT, K_PITCH, K_SWAY, MODEL, MODEL_FLAT, N_POSE, PITCH, SWAY, height_change,
-                        least_squares)
+                        prior_free)
 from .poseport import NO_FIX, PoseFix
 from .ride import RideHeight
+from .tiltfit import far_apart
+from .tiltport import FixedTilt, Hop
 
 
 @dataclass(frozen=True)
@@ -87,6 +90,7 @@ class PoseEstimator:
         self._read_dh = None                       # the last measured frame's information: its height change
         self._kf_at = None                         # the last keyframe's (distance, time)
         self.pitch_shown_rad = 0.0                 # the pitch the tracks show, beyond the configured too
+        self._pitch_read = None                    # this frame's prior-free pitch and its variance
 
     @property
     def projection(self):
@@ -127,6 +131,7 @@ class PoseEstimator:
         if kf.pose is None or len(idx) < 3:
             return NO_FIX
         t_idx, t_pts, t_moved, both = c.tracks
+        self._pitch_read = None                    # this frame's prior-free pitch, once read
         moved = t_moved.compress(both, 1)
         self._predict(t_s)
         if self.tilt.auto:
@@ -134,29 +139,26 @@ class PoseEstimator:
             xy = t_xy.compress(both, 0)
             moved_px = abs(float(moved[1].mean())) / (self.projection.mount.height_m / self.camera.fy)
             base = self.tilt.update(kf.pose[2], kf.pose[1].take(t_idx, 0), t_xy, moved_px, t_s,
-                                    self._shutter(kf, t_idx, t_pts, t_s))
+                                    shutter_factors(self.camera, kf, t_idx, t_pts[:, 1] + self._offset[1], t_s))
         else:                                      # a configured tilt reads the inliers only
             xy, base = None, 0.0
         rescaled = base
         jc = self.tilt.field.at_roi(c.pts)
         hh, hz, zz, means = self._information(kf.pose[0].take(idx, 0), jc, moved, self.tilt.tau)
-        found = not self.tilt.auto or self.tilt.track is not None     # read at a tilt not yet found, the
-        if self._warm_until is None or (found and not self._found):   # pose takes up its error: not till then
-            self._warm_until = t_s + self.p.warm_up_s
-            self._relearn()
-            # the ride height, decided once per tilt found: a bank's rise moves the estimate by ~1 deg,
-            # and a gate on the estimate closed on the climb and lost it (29.5 deg: +1.55 %)
-            self._riding = None
-        if self.tilt.turning:                      # ...and again once a sweep has turned it
-            self._riding = None
-        elif self._riding is None:
-            self._riding = found and abs(self.tilt_deg) <= self.p.ride_max_tilt_deg
-        self._found = found
+        if self.tilt.auto and self.tilt.turn.on:   # a turn of the camera followed: solved, not filtered
+            fix = self._turn_frame(kf, c, t_idx, t_xy, None, base, t_s)
+            if fix is not None:
+                return fix
+        found = self._found_now(t_s)
         if any(self._limit):                       # pitch, height or sway estimated at all
             base += self._filter(hh, hz, zz, c.sigma, 2 * len(idx), t_s - kf.t_s,
                                  learn_only=t_s < self._warm_until or not found or not self.p.correct_pose)
             if not found:                          # read at a tilt searched for, a pitch is the tilt's
                 self.pitch_shown_rad = 0.0         # error, which its own sigma counts
+            elif self.tilt.auto and self._pitch_read is not None:   # a pitch that is a turn of the camera?
+                fix = self._turn_frame(kf, c, t_idx, t_xy, turn_read(*self._pitch_read, means), base, t_s)
+                if fix is not None:
+                    return fix
         turn = self.tilt.keyframe_offset(t_s - kf.t_s)     # a camera turning: its keyframe at another tilt
         step, lat, sens = self._correction(means, self.tilt.tau, turn)
         scale = 0.0
@@ -165,9 +167,9 @@ class PoseEstimator:
             step, lat = step + (c.step + step) * scale, lat + (c.lat + lat) * scale
         if self.tilt.auto:
             self.tilt.level_m = scale * self.projection.mount.height_m
-            self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(),
-                                 _turned(self.s.take(_TILT_POSE), turn), float(moved[1].mean()) + step,
-                                 sens * (1.0 + scale), scale, turn))
+            pose = tuple((self.s.take(_TILT_POSE) + (0.0, 0.0, turn, 0.0)).tolist())   # keyframe's at the turn's tilt
+            self.tilt.record(Hop(t_s, self.projection, kf.pose[1].take(idx, 0), xy, moved[1].copy(), pose,
+                                 float(moved[1].mean()) + step, sens * (1.0 + scale), scale, turn, kf.t_s))
         old = self.projection
         remount, extra = self.tilt.remount()
         if remount is not None and far_apart(old, remount, self.p.tilt.found_sigma_deg):
@@ -175,19 +177,43 @@ class PoseEstimator:
         c.step, c.lat, kf.distance = c.step + step, c.lat + lat, kf.distance + base + extra
         return PoseFix(step, lat, base + extra, remount, rescaled + extra, *(self.tilt.epoch if rescaled + extra else ()))
 
+    def _found_now(self, t_s) -> bool:
+        """Is the tilt known (configured, or found)? Read at a tilt not yet found, the pose takes up
+        its error: learnt afresh from when it is. The ride height is decided once per tilt found (a
+        bank's rise moves the estimate by ~1 deg, and a gate on the estimate closed on the climb and
+        lost it: 29.5 deg, +1.55 %), and again once a turn of the camera is over."""
+        found = not self.tilt.auto or self.tilt.track is not None
+        if self._warm_until is None or (found and not self._found):
+            self._warm_until = t_s + self.p.warm_up_s
+            self._relearn()
+            self._riding = None
+        if self.tilt.turning:
+            self._riding = None
+        elif self._riding is None:
+            self._riding = found and abs(self.tilt_deg) <= self.p.ride_max_tilt_deg
+        self._found = found
+        return found
+
+    def _turn_frame(self, kf, c, t_idx, t_xy, read, base, t_s):
+        """A frame of a camera turned at a stand (crawler/camturn.py): its step solved with the turn,
+        nothing filtered (the pitch is the turn's), or None: no turn."""
+        solved = self.tilt.follow_turn(kf.pose[2], kf.pose[1].take(t_idx, 0), t_xy, read, t_s)
+        if solved is None:
+            return None
+        step, lat = solved[0] - c.step, solved[1] - c.lat
+        base += solved[2]                          # the step before, where the turn began, solved again
+        self._riding, self._end = None, None
+        if not self.tilt.turn.on:                  # over: the pose learnt afresh at the tilt reached
+            self._relearn()
+            self._warm_until = t_s + self.p.warm_up_s
+        remount, extra = self.tilt.remount()
+        c.step, c.lat, kf.distance = solved[0], solved[1], kf.distance + base + extra
+        return PoseFix(step, lat, base + extra, remount, base + extra, *(self.tilt.epoch if base + extra else ()))
+
     def _rides(self) -> bool:
         """The ride height is read and applied: at a tilt found (tilt auto) and, when it was found,
         not beyond where its readings hold (at 40 deg they drift alike and the chain sums them)."""
         return self._found and bool(self._riding)
-
-    def _shutter(self, kf, idx, pts, t_s):
-        """Each track's rolling-shutter factor: the frame interval over the time between the two
-        exposures of its feature (rows read later moved for longer), as the odometer scales them."""
-        dt = t_s - kf.t_s
-        if self.camera.readout_s <= 0 or dt <= 0:
-            return None
-        span = dt + self.camera.row_time(pts[:, 1] + self._offset[1]) - kf.row_t.take(idx)
-        return dt / np.maximum(span, 0.2 * dt)
 
     def checkpoint(self) -> dict:
         """What a restarted daemon starts from: tilt auto's estimate once found."""
@@ -280,16 +306,10 @@ class PoseEstimator:
         about that reading (the consensus's spread holds the pose's own pattern: as noise it hid the
         pitch), or None where the reading cannot be had."""
         k = self._kept
-        dof = rows - 2 - len(k)                    # less the axial and lateral means
-        solved = least_squares(hh, hz, k) if k and dof > 0 else None
+        solved = prior_free(hh, hz, zz, rows, k)
         if solved is None:
             return None
-        read, diag, explained = solved
-        sigma = math.sqrt(max(zz - explained, 0.0) / dof)
-        var = max(sigma, 1e-9) ** 2
-        d, cov = [0.0] * N_POSE, [0.0] * N_POSE     # the prior-free reading and its covariance
-        for j, i in enumerate(k):
-            d[i], cov[i] = read[j], diag[j] * var
+        d, cov, sigma = solved
         memory = math.exp(-1.0 / (30.0 * self.p.level_memory_s))    # per frame, at ~30 fps
         since = max(since_kf, 0.0)
         (e, u), shown = self._level, []
@@ -300,6 +320,8 @@ class PoseEstimator:
             shown.append(math.sqrt(max(level, 0.0)))
         self._sig = [min(limit, s) for limit, s in zip(self._limit, shown)]
         self.pitch_shown_rad = shown[PITCH]
+        if PITCH in k:
+            self._pitch_read = (d[PITCH], cov[PITCH])
         if self.ride:
             self._read_dh = (hh, hz, zz, rows)
         return sigma
@@ -370,12 +392,6 @@ class PoseEstimator:
         step = (mk[1] - mc[1]) * tau + mk[1] * pk - mc[1] * pc - mc[3] * dh + xk * sk - xc * sc
         lat = (mc[0] - mk[0]) * tau + mc[0] * pc - mk[0] * pk + mc[2] * dh
         return step, lat, mk[1] - mc[1]
-
-
-def _turned(pose, turn: float) -> tuple:
-    """A step's (pitch, height, keyframe pitch, keyframe height), the keyframe's pitch with the turn."""
-    pc, hc, pk, hk = pose.tolist()
-    return pc, hc, pk + turn, hk
 
 
 _EYE = [np.eye(n) for n in range(2 * N_POSE + 1)]

@@ -41,6 +41,23 @@ def least_squares(hh, hz, k):
     return read.tolist(), inv.diagonal().tolist(), explained
 
 
+def prior_free(hh, hz, zz, rows, k):
+    """This frame's pose against its keyframe's, read from its tracks alone (no prior): (reading,
+    covariance, both over all N_POSE states, zero where not in k), and the features' scatter about
+    it; None where it cannot be had."""
+    dof = rows - 2 - len(k)                        # less the axial and lateral means
+    solved = least_squares(hh, hz, k) if k and dof > 0 else None
+    if solved is None:
+        return None
+    read, diag, explained = solved
+    sigma = math.sqrt(max(zz - explained, 0.0) / dof)
+    var = max(sigma, 1e-9) ** 2
+    d, cov = [0.0] * N_POSE, [0.0] * N_POSE
+    for j, i in enumerate(k):
+        d[i], cov[i] = read[j], diag[j] * var
+    return d, cov, sigma
+
+
 def height_change(hh, hz, zz, rows, k):
     """A frame's height change against its keyframe, prior-free, with the states k read too (m,
     variance), or None. With the keyframe's pitch and sway among them: a tilt that is off shows as

@@ -543,7 +543,8 @@ def test_the_tilt_sigma_counts_consecutive_readings_that_cancel():
 def test_a_step_measured_again_at_the_found_tilt_reads_its_tracks_as_the_odometer_does():
     """Found at 40 deg after measuring at 0, a keyframe's step is measured again with the tracks
     the odometer chose at 0 deg; one that agreed only there must not pull it (the inliers' mean)."""
-    from crawler.autotilt import AutoTilt, Hop
+    from crawler.autotilt import AutoTilt
+    from crawler.tiltport import Hop
     from crawler.geometry import make_projection
     from crawler.measurement import recording_camera, thesis_roi
     from crawler.tilt import TiltTrack
@@ -630,7 +631,7 @@ def test_the_bridge_counts_the_pitch_shown_when_it_is_above_the_configured():
 def test_an_operator_reset_ends_tilt_auto_s_epoch():
     """After a reset the distance counts afresh: a better tilt found later measures only the steps
     since it again (before, the steps of the old count were measured again into the new one)."""
-    from crawler.autotilt import Hop
+    from crawler.tiltport import Hop
     from crawler.geometry import make_projection
     from crawler.measurement import recording_camera, thesis_roi
     from crawler.odometry import Odometer
@@ -747,7 +748,8 @@ def test_lost_frames_end_a_sweep_and_a_far_remount_keeps_a_turn_s_keyframe_tilt(
     """A gap may hide anything (a step is found afresh after it), so the sweep watch starts over;
     and a step measured again at a tilt far off drops its pitch and height as the old tilt's
     error, but not the keyframe tilt a sweep gave it (dropped, each such remount added 4-5 mm)."""
-    from crawler.autotilt import AutoTilt, Hop
+    from crawler.autotilt import AutoTilt
+    from crawler.tiltport import Hop
     from crawler.geometry import make_projection
     from crawler.measurement import recording_camera, thesis_roi
 

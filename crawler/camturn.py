@@ -1,0 +1,194 @@
+"""A camera turned while the crawler stands or creeps: the flow is the turn's, not travel. Pure: no I/O.
+
+The operator stops to inspect and turns the camera: every feature moves along the wall as if the car
+had driven (24 -> 34 deg at a stand read +5 cm). Travel moves every feature by the same wall metres;
+a turn moves each by what its row sees (far rows more), the pattern the pose estimator reads as the
+frame's pitch against its keyframe (crawler/pose.py). A pitch that is large, sure of itself and
+explains the step the tracks show is a turn, not the car's jitter (which a moving car's step dwarfs).
+From then on each frame's travel and turn are solved together, exactly: the keyframe at its tilt, the
+frame at the tilt that makes the features agree on one step. The mount follows (crawler/autotilt.py),
+and once the tilt holds still the readings take over from the tilt reached. docs/odometry.md, "Pose".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class TurnParams:
+    arm_deg: float = 1.5          # frames in a row turned the camera this far one way...
+    arm_share: tuple = (0.7, 1.6)   # ...each turn explaining this share of the step the tracks show
+    sure_z: float = 3.0           # (a frame's pitch within this many of its sigmas says nothing)
+    arm_z: float = 10.0           # a step closed before is solved again if the turn shows this sure
+    still_deg: float = 0.1        # the turn is over once the tilt's trend moves it less than this...
+    still_s: float = 0.5          # ...over this long (or the car drives: the turn explains under
+    drive_share: float = 0.5      # this share of the step all that while)
+    remount_deg: float = 3.0      # the mount follows the turn in strides this long (each a keyframe)
+    half_deg: float = 0.25        # the exact solve's parabola: this either side of its guess
+    sigma_share: float = 0.03     # the tilt reached is known to this share of the turn, at best...
+    sigma_floor_deg: float = 0.1  # ...and this
+
+
+def turn_read(pitch: float, var: float, means) -> tuple[float, float, float]:
+    """The frame's pitch against its keyframe (the pose estimator's prior-free reading and its
+    variance), its sigma, and the share of the tracks' step it explains (`means`: of the pose
+    model's columns, crawler/pose.py: the first is the step per radian of pitch, the seventh the step)."""
+    share = means[0] * pitch / means[6] if means[6] else math.inf
+    return pitch, math.sqrt(max(var, 0.0)), share
+
+
+def solve_turn(at, kf_tilt: float, xy_k: np.ndarray, xy_c: np.ndarray, guess: float, half: float):
+    """The frame's tilt less its keyframe's (radians) at which the features agree on one step, and
+    their displacements there ((n, 2): the keyframe's wall position less the frame's) of the
+    features kept (a mask: strays, far from the rest at that turn, left out), or None. `at(tilt)`: the projection at a tilt. Travel
+    only shifts every feature alike, so the spread of the displacements is the turn's alone; its
+    least is found by parabolas from the guess, and again without the strays. (The car's bounce
+    and sway are not fitted with it: a height's pattern is too like a turn's in half a frame, and
+    fitted, it cost the clean turns more than it gave the shaking one.)"""
+    wk = at(kf_tilt).to_wall(xy_k)
+    delta = _least_spread(at, kf_tilt, wk, xy_c, guess, half)
+    if delta is None:
+        return None
+    d = wk - at(kf_tilt + delta).to_wall(xy_c)
+    keep = _agreeing(d)
+    if not keep.all() and np.count_nonzero(keep) >= 5:
+        delta = _least_spread(at, kf_tilt, wk[keep], xy_c[keep], delta, half)
+        if delta is None:
+            return None
+        d = wk[keep] - at(kf_tilt + delta).to_wall(xy_c[keep])
+    else:
+        keep = np.ones(len(d), bool)
+    return delta, d, keep
+
+
+def _least_spread(at, kf_tilt, wk, xy_c, delta, h):
+    def spread(delta):
+        d = wk - at(kf_tilt + delta).to_wall(xy_c)
+        if not np.all(np.isfinite(d)):
+            return math.inf
+        d = d - d.mean(axis=0)
+        return float(np.sum(d * d))
+
+    fine = h / 16.0                   # the spread is a parabola only near its least: close in
+    for _ in range(12):               # a turn of some degrees between two frames: a few strides
+        lo, mid, hi = spread(delta - h), spread(delta), spread(delta + h)
+        a = lo + hi - 2.0 * mid
+        if not (a > 0 and math.isfinite(a)):
+            return None
+        shift = max(-8.0 * h, min(8.0 * h, h * (lo - hi) / (2.0 * a)))
+        delta += shift
+        if abs(shift) < 0.1 * h:
+            if h <= fine:
+                return delta
+            h /= 4.0
+    return None                       # no least found
+
+
+def _agreeing(d: np.ndarray, k: float = 6.0) -> np.ndarray:
+    """The displacements within k robust sigmas of their median (a track on the wrong texture
+    lands anywhere)."""
+    dev = np.abs(d - np.median(d, axis=0))
+    mad = np.median(dev, axis=0) * 1.4826 + 1e-9
+    return np.all(dev <= k * mad, axis=1) & np.all(np.isfinite(d), axis=1)
+
+
+def turned_before(at, kf_tilt: float, xy_k, xy_c, p: TurnParams):
+    """A closed step's turn, when a turn is found just after it (it began there, and was small yet):
+    (as solve_turn) if the features agree far better with it than without, else None. Not asked to
+    explain most of the step: the step in which the car stopped and the turn began holds both (asked
+    to, a 24 -> 34 deg turn read +0.21 % for +0.02 %). On a moving car a bounce reads as a turn too
+    (-7 mm on a creeping car's 34 mm step): only a turn found (CameraTurn.offer) asks."""
+    solved = solve_turn(at, kf_tilt, xy_k, xy_c, 0.0, math.radians(p.half_deg))
+    if solved is None:
+        return None
+    _, d, keep = solved
+    plain = at(kf_tilt).to_wall(xy_k[keep]) - at(kf_tilt).to_wall(xy_c[keep])
+    left, before = float(np.var(d[:, 0]) + np.var(d[:, 1])), float(np.var(plain[:, 0]) + np.var(plain[:, 1]))
+    z2 = len(d) * (before - left) / max(left, 1e-18)      # the turn's reduction, in its noise's units
+    return solved if z2 >= p.arm_z ** 2 else None
+
+
+class CameraTurn:
+    """A turn being followed: the keyframe's tilt and the frame's (radians, absolute), and the
+    frames' tilts over the last `still_s`, to tell when it is over; before one, the frames in a row
+    whose flow is mostly a turn one way, to tell when one begins."""
+
+    def __init__(self, params: TurnParams | None = None):
+        self.p = params or TurnParams()
+        self.on = False
+        self._run = (0, None, 0.0, 0.0)   # (its sign, keyframe, its keyframes' turns closed, this one's)
+        self.kf_tilt = self.tilt = self.began = 0.0
+        self._trail: list = []        # (t, tilt, share of the step) of the turn's frames: the last still_s
+        self._delta = 0.0             # the last frame's tilt less its keyframe's: the next one's guess
+
+    def offer(self, serial, pitch: float, sd: float, share: float) -> bool:
+        """This frame's pitch against its keyframe `serial` (the pose estimator's prior-free reading,
+        its sigma, the share of the tracks' step it explains): True once the frames in a row whose
+        flow is mostly a turn one way have turned the camera arm_deg. A car's pitch jitter, that
+        explains a creeping car's step too (0.5 deg on a photographed wall at 4 cm/s), turns back
+        within a fraction of a second; an operator's turn goes on. A frame unsure of its pitch
+        neither counts nor breaks the run."""
+        sign, kf, closed, last = self._run
+        if abs(pitch) < self.p.sure_z * sd:
+            return False
+        lo, hi = self.p.arm_share
+        way = 1 if pitch > 0 else -1
+        if not lo <= share <= hi or (sign and way != sign):
+            self._run = (0, None, 0.0, 0.0)
+            return False
+        if kf is not None and serial != kf:
+            closed += last
+        self._run = (way, serial, closed, pitch)
+        return abs(closed + pitch) >= math.radians(self.p.arm_deg)
+
+    def forget(self):
+        """Lost frames, or a turn begun: no run of frames before counts."""
+        self._run = (0, None, 0.0, 0.0)
+
+    def start(self, kf_tilt: float, guess: float, t_s: float):
+        self.on, self.kf_tilt, self.tilt, self.began = True, kf_tilt, kf_tilt, kf_tilt
+        self.forget()
+        self._trail, self._delta = [(t_s, kf_tilt, 1.0)], guess
+
+    def frame(self, at, xy_k, xy_c, t_s: float):
+        """This frame's displacements with the turn solved (as solve_turn), or None."""
+        solved = solve_turn(at, self.kf_tilt, xy_k, xy_c, self._delta, math.radians(self.p.half_deg))
+        if solved is None:
+            return None
+        self._delta, d, keep = solved
+        self.tilt = self.kf_tilt + self._delta
+        plain = float(np.mean(at(self.kf_tilt).to_wall(xy_k[keep])[:, 1] - at(self.kf_tilt).to_wall(xy_c[keep])[:, 1]))
+        share = 1.0 - float(np.mean(d[:, 1])) / plain if plain else 1.0   # of the step, the turn's
+        self._trail.append((t_s, self.tilt, share))
+        while len(self._trail) > 2 and self._trail[1][0] <= t_s - self.p.still_s:
+            self._trail.pop(0)
+        return d
+
+    def keyframe(self):
+        """A new keyframe, on the frame just measured: at that frame's tilt."""
+        self.kf_tilt, self._delta = self.tilt, 0.0
+
+    def still(self, t_s: float) -> bool:
+        """The turn is over: over the last still_s the tilt's trend moved it less than still_deg (or
+        than three of its standard errors: a car's jitter is no turn), or the car drove (the turn
+        explained under drive_share of every step)."""
+        if t_s - self._trail[0][0] < self.p.still_s or len(self._trail) < 4:
+            return False
+        t, tilt, share = np.array(self._trail).T
+        if np.all(share < self.p.drive_share):
+            return True
+        tc = t - t.mean()
+        sxx = float(tc.dot(tc))
+        slope = float(tc.dot(tilt)) / sxx
+        s2 = float(np.sum((tilt - tilt.mean() - slope * tc) ** 2)) / (len(t) - 2)
+        moved = abs(slope) * self.p.still_s
+        return moved < max(math.radians(self.p.still_deg), 3.0 * math.sqrt(s2 / sxx) * self.p.still_s)
+
+    def end(self) -> float:
+        """The turn is over: the sigma (radians) of the tilt it reached."""
+        self.on = False
+        return max(self.p.sigma_share * abs(self.tilt - self.began), math.radians(self.p.sigma_floor_deg))
