@@ -23,7 +23,8 @@ class TurnParams:
     arm_deg: float = 1.5          # frames in a row turned the camera this far one way...
     arm_share: tuple = (0.7, 1.6)   # ...each turn explaining this share of the step the tracks show
     sure_z: float = 3.0           # (a frame's pitch within this many of its sigmas says nothing)
-    arm_z: float = 10.0           # a step closed before is solved again if the turn shows this sure
+    arm_z: float = 10.0           # the frame that starts it is this sure; a step closed before is
+                                  # solved again if the turn shows this sure in it
     still_deg: float = 0.1        # the turn is over once the tilt's trend moves it less than this...
     still_s: float = 0.5          # ...over this long (or the car drives: the turn explains under
     drive_share: float = 0.5      # this share of the step all that while)
@@ -131,7 +132,8 @@ class CameraTurn:
         flow is mostly a turn one way have turned the camera arm_deg. A car's pitch jitter, that
         explains a creeping car's step too (0.5 deg on a photographed wall at 4 cm/s), turns back
         within a fraction of a second; an operator's turn goes on. A frame unsure of its pitch
-        neither counts nor breaks the run."""
+        neither counts nor breaks the run, and the frame that starts a turn is sure of it (arm_z: at
+        0 deg, where a pitch is hardest to tell from travel, one frame read 2.3 deg at 5 sigma)."""
         sign, kf, closed, last = self._run
         if abs(pitch) < self.p.sure_z * sd:
             return False
@@ -143,7 +145,7 @@ class CameraTurn:
         if kf is not None and serial != kf:
             closed += last
         self._run = (way, serial, closed, pitch)
-        return abs(closed + pitch) >= math.radians(self.p.arm_deg)
+        return abs(closed + pitch) >= math.radians(self.p.arm_deg) and abs(pitch) >= self.p.arm_z * sd
 
     def forget(self):
         """Lost frames, or a turn begun: no run of frames before counts."""
