@@ -12,7 +12,7 @@ in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
 - sweep: the operator turns it slowly (24 -> 40 deg over 6 s, 24 -> 30 over 8 s, 40 -> 10 over 3 s,
          and 24 -> 34 over 4 s on a shaking car), tilt auto;
 - stand: the crawler stops, the operator turns the camera (over 2 s, 0.3 s, 1.5 s; out and back;
-         on a shaking car) and drives on, tilt auto;
+         on a shaking car; over 0.3 s with a rolling shutter) and drives on, tilt auto;
 - shake: suspension bounce, pitch jitter, roll and sway at several tilts and speeds: configured
          tilt with the pose estimator on (shake) and off (shake-off, the default), and tilt auto: final error and the worst deviation from the
          true trajectory mid-run, in % of the path (and of the path so far, after its first 0.2 m);
@@ -73,6 +73,8 @@ STAND_CASES = {                           # the operator stops, turns the camera
                                   speed_m_s=0.3, seed=84, **STAND),
     "stand-turn-shake-24-36": dict(tilt_deg=24, tilt_schedule=((3.5, 24.0), (5.0, 36.0)), speed_m_s=0.25, seed=85,
                                    **STAND, **SHAKE),
+    "stand-turn-fast-rs-24-34": dict(tilt_deg=24, tilt_schedule=((4.0, 24.0), (4.3, 34.0)), speed_m_s=0.3, seed=87,
+                                     readout_ms=10.0, **STAND),   # a rolling shutter: rows turned further
 }
 SHAKE_CASES = {
     **{f"shake-{t}deg-{v}": dict(tilt_deg=t, speed_m_s=v, duration_s=d, seed=50 + t, **SHAKE)
@@ -82,6 +84,11 @@ SHAKE_CASES = {
     "sediment-24deg-0.2": dict(tilt_deg=24, speed_m_s=0.2, duration_s=12, seed=63, bounce_mm=0.5,
                                height_profile=((0.8, 0.0), (1.1, 15.0), (1.7, 15.0), (2.0, 0.0))),
 }
+
+
+def _readout(fields: dict) -> list:
+    """A rolling-shutter render is replayed with its readout time configured, as on the crawler."""
+    return [f"camera.readout_ms={fields['readout_ms']}"] if fields.get("readout_ms") else []
 
 
 def render(out: Path, name: str, fields: dict) -> dict:
@@ -166,7 +173,7 @@ def jobs(out: Path, only: set) -> list:
     if "sweep" in only:
         todo += [(out, "sweep", n, f, ["mount.tilt_deg=auto"]) for n, f in SWEEP_CASES.items()]
     if "stand" in only:
-        todo += [(out, "stand", n, f, ["mount.tilt_deg=auto"]) for n, f in STAND_CASES.items()]
+        todo += [(out, "stand", n, f, ["mount.tilt_deg=auto"] + _readout(f)) for n, f in STAND_CASES.items()]
     if "shake" in only:
         for n, f in SHAKE_CASES.items():
             tilt = f"mount.tilt_deg={f['tilt_deg']}"

@@ -73,6 +73,8 @@ class AutoTilt(FixedTilt):
 
     @property
     def sigma_rad(self) -> float:
+        if self.turn.on:
+            return self.turn.sigma_rad
         if self.track is None:
             return math.radians(self.p.tilt.start_sigma_deg if not self.steps else self.p.tilt.step_sigma_deg)
         return math.sqrt(max(self.track.var, 1e-12))
@@ -173,9 +175,17 @@ class AutoTilt(FixedTilt):
             del self.hops[:-self.p.max_hops]
         self._last = None
 
-    def resume(self, tilt_rad: float):
-        """A restarted run's tilt, as if the search had just found it: tracked from there (a camera
-        turned while the daemon was down is a step, found as any other). The projection to use."""
+    def checkpoint(self) -> dict:
+        if self.track is None:
+            return {}
+        return {"tilt": {"deg": round(math.degrees(self.projection.mount.tilt_rad + self.tau), 4),
+                         "sigma_deg": round(math.degrees(self.sigma_rad), 4)}}
+
+    def resume(self, saved: dict):
+        """A restarted run's tilt (a checkpoint's), as if the search had just found it: tracked from
+        there (a camera turned while the daemon was down is a step, found as any other). The
+        projection to use."""
+        tilt_rad = math.radians(saved["deg"])
         m = self.projection.mount
         self.projection = type(self.projection)(replace(m, tilt_rad=tilt_rad))
         self.field = JacobianField(self.camera, self.projection, self.roi)
@@ -207,23 +217,32 @@ class AutoTilt(FixedTilt):
 
     turning = property(lambda self: self.sweep.moving or self.turn.on)
 
-    def follow_turn(self, serial, xy_k, xy_c, read, t_s):
+    def follow_turn(self, serial, xy_k, xy_c, read, t_s, rows=None):
         """A camera turned at a stand (crawler/camturn.py): `read` is the frame's pitch against its
         keyframe `serial`, its sigma and the share of the step it explains (None while a turn is followed).
-        The frame's (step, lateral step) with the turn solved, or None: no turn. The steps before it
-        stay at the tilt they were measured with; once the tilt holds still, its readings go on from
-        the tilt reached, checked for a step (a turn solved wrong is searched for again)."""
+        The frame's (step, lateral step, metres the steps just before gain) with the turn solved, or
+        None: no turn. The steps before it stay at the tilt they were measured with; once the tilt
+        holds still, its readings go on from the tilt reached, checked for a step (a turn solved wrong
+        is searched for again). `rows`: the tracks' exposure times within their frames (keyframe,
+        now; seconds), for a rolling shutter: the rows read later were turned further."""
         m = self.projection.mount
         kind, hm = type(self.projection), m.height_m + self.level_m
         earlier = 0.0
         if not self.turn.on:
             if self.track is None or read is None or not self.turn.offer(serial, *read):
                 return None
+            before = m.tilt_rad + self.tau + self.keyframe_offset(t_s - self._kf_t)   # the keyframe's
             earlier, turned = self._turned_before(lambda tilt: kind(replace(m, tilt_rad=tilt, height_m=hm)))
-            self.turn.start(m.tilt_rad + self.tau + turned, read[0], t_s)
-            self.hops, self._last, self._closing = [], None, None
+            run = self.turn.run_closed_rad            # the steps' turn unsure in them: the tilt still has it
+            self.turn.start(before + (run if abs(run) > abs(turned) else turned), before, read[0], t_s)
+            self.hops, self._last, self._closing, self._sensitivity = [], None, None, 0.0
             self.sweep.reset()
-        d = self.turn.frame(lambda tilt: kind(replace(m, tilt_rad=tilt, height_m=hm)), xy_k, xy_c, t_s)
+        shift = None
+        if rows is not None:
+            kf_rate, rate = self.turn.rates
+            shift = (self.field.at(xy_k)[:, 0:2] * (kf_rate * rows[0])[:, None]
+                     - self.field.at(xy_c)[:, 0:2] * (rate * rows[1])[:, None])
+        d = self.turn.frame(lambda tilt: kind(replace(m, tilt_rad=tilt, height_m=hm)), xy_k, xy_c, t_s, shift)
         if d is None:                 # the features no longer tell the turn: the tilt is searched for
             self.turn.end()
             self._search_again(self.turn.tilt)
@@ -248,7 +267,7 @@ class AutoTilt(FixedTilt):
             start = hop.kf_t_s
         gained = turned = 0.0
         for hop in reversed(chain):
-            solved = turned_before(at, hop.projection.mount.tilt_rad + self.tau + turned, hop.xy_k, hop.xy_c,
+            solved = turned_before(at, self.projection.mount.tilt_rad + self.tau + turned, hop.xy_k, hop.xy_c,
                                    self.p.turn)
             if solved is not None:
                 (_, step), _, _ = robust_step(solved[1].T * LATERAL_AXIAL, self._floor_m, MAD_K)

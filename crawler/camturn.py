@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .posemodel import PITCH, prior_free
+
 
 @dataclass(frozen=True)
 class TurnParams:
@@ -34,36 +36,43 @@ class TurnParams:
     sigma_floor_deg: float = 0.1  # ...and this
 
 
-def turn_read(pitch: float, var: float, means) -> tuple[float, float, float]:
-    """The frame's pitch against its keyframe (the pose estimator's prior-free reading and its
-    variance), its sigma, and the share of the tracks' step it explains (`means`: of the pose
-    model's columns, crawler/pose.py: the first is the step per radian of pitch, the seventh the step)."""
+def turn_pitch(read, hh, hz, zz, rows, means):
+    """The frame's pitch against its keyframe, its sigma, and the share of the tracks' step it
+    explains, or None. `read`: the pose filter's prior-free (pitch, variance), or None where the
+    pitch is not estimated: then read here from the model's normal equations (crawler/posemodel.py;
+    `means`: of its columns: the first is the step per radian of pitch, the seventh the step)."""
+    if read is None:
+        solved = prior_free(hh, hz, zz, rows, [PITCH])
+        if solved is None:
+            return None
+        read = solved[0][PITCH], solved[1][PITCH]
+    pitch, var = read
     share = means[0] * pitch / means[6] if means[6] else math.inf
     return pitch, math.sqrt(max(var, 0.0)), share
 
 
-def solve_turn(at, kf_tilt: float, xy_k: np.ndarray, xy_c: np.ndarray, guess: float, half: float):
+def solve_turn(at, kf_tilt: float, xy_k: np.ndarray, xy_c: np.ndarray, guess: float, half: float, shift=None):
     """The frame's tilt less its keyframe's (radians) at which the features agree on one step, and
     their displacements there ((n, 2): the keyframe's wall position less the frame's) of the
     features kept (a mask: strays, far from the rest at that turn, left out), or None. `at(tilt)`: the projection at a tilt. Travel
     only shifts every feature alike, so the spread of the displacements is the turn's alone; its
     least is found by parabolas from the guess, and again without the strays. (The car's bounce
     and sway are not fitted with it: a height's pattern is too like a turn's in half a frame, and
-    fitted, it cost the clean turns more than it gave the shaking one.)"""
+    fitted, it cost the clean turns more than it gave the shaking one.) `shift`: (N, 2) added to
+    each displacement (a rolling shutter's: rows read later were turned further)."""
     wk = at(kf_tilt).to_wall(xy_k)
+    if shift is not None:
+        wk = wk + shift
     delta = _least_spread(at, kf_tilt, wk, xy_c, guess, half)
     if delta is None:
         return None
     d = wk - at(kf_tilt + delta).to_wall(xy_c)
     keep = _agreeing(d)
     if not keep.all() and np.count_nonzero(keep) >= 5:
-        delta = _least_spread(at, kf_tilt, wk[keep], xy_c[keep], delta, half)
-        if delta is None:
-            return None
-        d = wk[keep] - at(kf_tilt + delta).to_wall(xy_c[keep])
-    else:
-        keep = np.ones(len(d), bool)
-    return delta, d, keep
+        again = _least_spread(at, kf_tilt, wk[keep], xy_c[keep], delta, half)
+        if again is not None:         # (else the first, with the strays in)
+            return again, wk[keep] - at(kf_tilt + again).to_wall(xy_c[keep]), keep
+    return delta, d, np.ones(len(d), bool)
 
 
 def _least_spread(at, kf_tilt, wk, xy_c, delta, h):
@@ -125,6 +134,7 @@ class CameraTurn:
         self.kf_tilt = self.tilt = self.began = 0.0
         self._trail: list = []        # (t, tilt, share of the step) of the turn's frames: the last still_s
         self._delta = 0.0             # the last frame's tilt less its keyframe's: the next one's guess
+        self._kf_rate = 0.0           # the turn's rate when the keyframe was taken (rad/s)
 
     def offer(self, serial, pitch: float, sd: float, share: float) -> bool:
         """This frame's pitch against its keyframe `serial` (the pose estimator's prior-free reading,
@@ -135,6 +145,8 @@ class CameraTurn:
         neither counts nor breaks the run, and the frame that starts a turn is sure of it (arm_z: at
         0 deg, where a pitch is hardest to tell from travel, one frame read 2.3 deg at 5 sigma)."""
         sign, kf, closed, last = self._run
+        if kf is not None and serial not in (kf, kf + 1):   # a keyframe passed unread: no run
+            sign, kf, closed, last = self._run = (0, None, 0.0, 0.0)
         if abs(pitch) < self.p.sure_z * sd:
             return False
         lo, hi = self.p.arm_share
@@ -151,19 +163,32 @@ class CameraTurn:
         """Lost frames, or a turn begun: no run of frames before counts."""
         self._run = (0, None, 0.0, 0.0)
 
-    def start(self, kf_tilt: float, guess: float, t_s: float):
-        self.on, self.kf_tilt, self.tilt, self.began = True, kf_tilt, kf_tilt, kf_tilt
-        self.forget()
-        self._trail, self._delta = [(t_s, kf_tilt, 1.0)], guess
+    @property
+    def run_closed_rad(self) -> float:
+        """The turn the run of frames showed in its keyframes closed (their pitches, summed)."""
+        return self._run[2]
 
-    def frame(self, at, xy_k, xy_c, t_s: float):
+    def start(self, kf_tilt: float, began: float, guess: float, t_s: float):
+        """A turn found: its keyframe's tilt, the tilt before it (radians), the frame's turn as read."""
+        self.on, self.kf_tilt, self.tilt, self.began = True, kf_tilt, kf_tilt, began
+        self.forget()
+        self._trail, self._delta, self._kf_rate = [(t_s, kf_tilt, 1.0)], guess, 0.0
+
+    @property
+    def rates(self) -> tuple[float, float]:
+        """(the turn's rate when the keyframe was taken, now) in radians a second, from its frames."""
+        (t0, a, _), (t1, b, _) = self._trail[-2:] if len(self._trail) > 1 else ((0.0, 0.0, 0), (1.0, 0.0, 0))
+        return self._kf_rate, (b - a) / (t1 - t0) if t1 > t0 else 0.0
+
+    def frame(self, at, xy_k, xy_c, t_s: float, shift=None):
         """This frame's displacements with the turn solved (as solve_turn), or None."""
-        solved = solve_turn(at, self.kf_tilt, xy_k, xy_c, self._delta, math.radians(self.p.half_deg))
+        solved = solve_turn(at, self.kf_tilt, xy_k, xy_c, self._delta, math.radians(self.p.half_deg), shift)
         if solved is None:
             return None
         self._delta, d, keep = solved
         self.tilt = self.kf_tilt + self._delta
-        plain = float(np.mean(at(self.kf_tilt).to_wall(xy_k[keep])[:, 1] - at(self.kf_tilt).to_wall(xy_c[keep])[:, 1]))
+        plain = at(self.kf_tilt).to_wall(xy_k[keep])[:, 1] - at(self.kf_tilt).to_wall(xy_c[keep])[:, 1]
+        plain = float(np.mean(plain if shift is None else plain + shift[keep, 1]))
         share = 1.0 - float(np.mean(d[:, 1])) / plain if plain else 1.0   # of the step, the turn's
         self._trail.append((t_s, self.tilt, share))
         while len(self._trail) > 2 and self._trail[1][0] <= t_s - self.p.still_s:
@@ -172,7 +197,7 @@ class CameraTurn:
 
     def keyframe(self):
         """A new keyframe, on the frame just measured: at that frame's tilt."""
-        self.kf_tilt, self._delta = self.tilt, 0.0
+        self.kf_tilt, self._delta, self._kf_rate = self.tilt, 0.0, self.rates[1]
 
     def still(self, t_s: float) -> bool:
         """The turn is over: over the last still_s the tilt's trend moved it less than still_deg (or
@@ -190,7 +215,12 @@ class CameraTurn:
         moved = abs(slope) * self.p.still_s
         return moved < max(math.radians(self.p.still_deg), 3.0 * math.sqrt(s2 / sxx) * self.p.still_s)
 
+    @property
+    def sigma_rad(self) -> float:
+        """The sigma of the tilt reached so far."""
+        return max(self.p.sigma_share * abs(self.tilt - self.began), math.radians(self.p.sigma_floor_deg))
+
     def end(self) -> float:
         """The turn is over: the sigma (radians) of the tilt it reached."""
         self.on = False
-        return max(self.p.sigma_share * abs(self.tilt - self.began), math.radians(self.p.sigma_floor_deg))
+        return self.sigma_rad

@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from .autotilt import AutoTilt, AutoTiltParams
-from .camturn import turn_read
+from .camturn import turn_pitch
 from .consensus import shutter_factors
 from .estimate import finite_round
 from .posemodel import (HEIGHT, K_HEIGHT, K_PITCH, K_SWAY, MODEL, MODEL_FLAT, N_POSE, PITCH, SWAY, height_change,
@@ -155,10 +155,11 @@ class PoseEstimator:
                                  learn_only=t_s < self._warm_until or not found or not self.p.correct_pose)
             if not found:                          # read at a tilt searched for, a pitch is the tilt's
                 self.pitch_shown_rad = 0.0         # error, which its own sigma counts
-            elif self.tilt.auto and self._pitch_read is not None:   # a pitch that is a turn of the camera?
-                fix = self._turn_frame(kf, c, t_idx, t_xy, turn_read(*self._pitch_read, means), base, t_s)
-                if fix is not None:
-                    return fix
+        if found and self.tilt.auto:               # a pitch that is a turn of the camera? (the filter's
+            read = turn_pitch(self._pitch_read, hh, hz, zz, 2 * len(idx), means)   # refinement had it as the car's)
+            fix = self._turn_frame(kf, c, t_idx, t_xy, read, rescaled, t_s) if read else None
+            if fix is not None:
+                return fix
         turn = self.tilt.keyframe_offset(t_s - kf.t_s)     # a camera turning: its keyframe at another tilt
         step, lat, sens = self._correction(means, self.tilt.tau, turn)
         scale = 0.0
@@ -197,12 +198,14 @@ class PoseEstimator:
     def _turn_frame(self, kf, c, t_idx, t_xy, read, base, t_s):
         """A frame of a camera turned at a stand (crawler/camturn.py): its step solved with the turn,
         nothing filtered (the pitch is the turn's), or None: no turn."""
-        solved = self.tilt.follow_turn(kf.pose[2], kf.pose[1].take(t_idx, 0), t_xy, read, t_s)
+        rows = ((kf.row_t.take(t_idx), self.camera.row_time(c.tracks[1][:, 1] + self._offset[1]))
+                if self.camera.readout_s > 0 else None)   # a rolling shutter: each track's exposure time
+        solved = self.tilt.follow_turn(kf.pose[2], kf.pose[1].take(t_idx, 0), t_xy, read, t_s, rows)
         if solved is None:
             return None
         step, lat = solved[0] - c.step, solved[1] - c.lat
         base += solved[2]                          # the step before, where the turn began, solved again
-        self._riding, self._end = None, None
+        self._riding, self._end, self.pitch_shown_rad = None, None, 0.0   # the pitch is the turn's
         if not self.tilt.turn.on:                  # over: the pose learnt afresh at the tilt reached
             self._relearn()
             self._warm_until = t_s + self.p.warm_up_s
@@ -217,16 +220,12 @@ class PoseEstimator:
 
     def checkpoint(self) -> dict:
         """What a restarted daemon starts from: tilt auto's estimate once found."""
-        if not self.tilt.auto or self.tilt.track is None:
-            return {}
-        return {"tilt": {"deg": round(self.tilt_deg, 4), "sigma_deg": round(math.degrees(self.tilt.sigma_rad), 4)}}
+        return self.tilt.checkpoint()
 
     def resume(self, saved):
         """The checkpoint's tilt (crawler/checkpoint.py checked it), for tilt auto: the projection
         the odometer measures with from the first frame, or None."""
-        if not self.tilt.auto or not saved:
-            return None
-        return self.tilt.resume(math.radians(saved["deg"]))
+        return self.tilt.resume(saved) if saved else None
 
     def status(self) -> dict:
         """What the daemon's status says of the pose (docs/topics.md)."""

@@ -60,4 +60,10 @@ class FixedTilt:
     def keyframe_offset(self, since_kf_s: float) -> float:
         return 0.0
 
+    def checkpoint(self) -> dict:         # what a restarted daemon starts from: nothing, configured
+        return {}
+
+    def resume(self, saved: dict):
+        return None
+
     turning = False           # a sweep under way (AutoTilt)

@@ -27,7 +27,7 @@ from .config import SimConfig, SimError
 from .light import led_light
 from .motion import Motion, sine
 from .patterns import make_pattern
-from .pose import PoseModel
+from .pose import PoseModel, keyframes
 from .texture import LEVELS, Stretch, WallTexture, inside
 
 LOD_BIAS = 0.5          # start blending in level 1 at a footprint of 2^0.5 texels per pixel
@@ -192,11 +192,19 @@ class Simulator:
                                      self.radius_m - pose["H"], self.radius_m)
         return y
 
-    def _render_instant(self, tau: float, exposure: float = 0.0) -> np.ndarray:
-        """One camera pose at tau; travel during `exposure` (s) is an axial box blur."""
+    def _render_instant(self, tau: float, exposure: float = 0.0, posed: float | None = None) -> np.ndarray:
+        """One camera pose at tau (or at `posed`); travel during `exposure` (s) is an axial box blur.
+        A camera turned during a rolling shutter's readout: each band of rows at its own time's tilt."""
         c = self.cfg
+        if posed is None and c.readout_ms > 0 and c.tilt_schedule:
+            read = c.readout_ms / 1000.0
+            swing = abs(np.diff(keyframes(np.array([tau, tau + read]), c.tilt_schedule, c.tilt_deg))[0])
+            cut = np.linspace(0, self.height, min(64, int(swing / 0.02) + 1) + 1).astype(int)   # 0.02 deg a band
+            if len(cut) > 2:
+                mid = tau + read * (cut[:-1] + cut[1:] - 1) / 2 / (self.height - 1)
+                return np.concatenate([self._render_instant(tau, exposure, t)[a:b] for a, b, t in zip(cut, cut[1:], mid)])
         tex = self.texture
-        pose = self.pose(tau)
+        pose = self.pose(tau if posed is None else posed)
         if self._dynamic:
             view = self._view(pose["tilt"], pose["H"], pose["sway"])
             levels = self._levels_for(pose["tilt"], view)

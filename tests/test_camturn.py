@@ -103,7 +103,7 @@ def test_a_turn_ends_when_the_tilt_stands_still_or_the_car_drives():
 
     def run(tilts, travel_mm=0.0):
         turn = CameraTurn(p)
-        turn.start(kf_tilt, 0.0, 0.0)
+        turn.start(kf_tilt, kf_tilt, 0.0, 0.0)
         over = []
         for ti, tilt in zip(t[1:], tilts[1:]):
             view = _turned_view(24.0, tilt, travel_mm / 1000.0)
@@ -138,3 +138,31 @@ def test_a_camera_turned_at_a_stand_is_not_read_as_travel(render_run, crawlerd, 
     assert s["pose"]["tilt_steps"] >= 1
     at_stand = [r for r in rows if 3.6 < r["t_s"] < 3.9 and r.get("tilt_deg") is not None]
     assert at_stand and all(abs(r["tilt_deg"] - 32.0) < 1.0 for r in at_stand)   # followed while standing
+
+
+def test_a_rolling_shutter_s_rows_turned_further_are_taken_out_of_the_turn():
+    """With a rolling shutter the rows read later were turned further (33 deg/s, rows over 10 ms:
+    0.3 deg across the frame). Left in, that skew reads as a smaller turn and as travel; the
+    tracks' exposure times (as AutoTilt.follow_turn gives them) take it out."""
+    from crawler.posefield import JacobianField
+
+    mount = S.MountSettings(tilt_deg=24.0).mount()
+    cam = recording_camera(S.CameraSettings())
+    roi = thesis_roi(cam.width, cam.height)
+    x, y, w, h = roi
+    rng = np.random.default_rng(4)
+    px = np.column_stack([rng.uniform(x + 20, x + w - 20, 40), rng.uniform(y + 20, y + h - 20, 40)])
+
+    def at(tilt):
+        return make_projection("cylinder", replace(mount, tilt_rad=tilt))
+
+    xy_k = cam.normalise(px)
+    wall = at(mount.tilt_rad).to_wall(xy_k)
+    rate, turn = math.radians(33.0), math.radians(3.0)
+    row_t = 0.010 * (px[:, 1] - y) / h                    # each feature's exposure after the window's first row
+    xy_c = np.vstack([at(mount.tilt_rad + turn + rate * t).to_image(wall[i:i + 1]) for i, t in enumerate(row_t)])
+    shift = -JacobianField(cam, at(mount.tilt_rad), roi).at(xy_c)[:, 0:2] * (rate * row_t)[:, None]
+    plain = solve_turn(at, mount.tilt_rad, xy_k, xy_c, 0.0, math.radians(0.25))
+    timed = solve_turn(at, mount.tilt_rad, xy_k, xy_c, 0.0, math.radians(0.25), shift)
+    assert abs(math.degrees(timed[0]) - 3.0) < 0.02 and abs(np.mean(timed[1][:, 1])) < 1e-4
+    assert abs(math.degrees(plain[0]) - 3.0) > 0.05 and abs(np.mean(plain[1][:, 1])) > 3e-4

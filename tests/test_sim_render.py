@@ -141,6 +141,20 @@ def test_rolling_shutter_row_time():
     assert np.abs(a[-1] - gs.render_linear(0.2)[-1]).mean() > 0.05      # and the shutter did matter
 
 
+def test_a_camera_turned_during_the_readout_exposes_each_band_of_rows_at_its_own_tilt():
+    """A rolling shutter on a turning camera: the rows read later were turned further (bands of
+    at most 0.02 deg); a still camera, or one not turning then, renders as before."""
+    turn = ((0.0, 24.0), (0.1, 34.0))                    # 100 deg/s: 2 deg over a 20 ms readout
+    rs = Simulator(SimConfig(speed_m_s=0.0, tilt_schedule=turn, readout_ms=20, window=CENTRE_WINDOW))
+    gs = Simulator(SimConfig(speed_m_s=0.0, tilt_schedule=turn, window=CENTRE_WINDOW))
+    a = rs.render_linear(0.03)
+    assert np.abs(a[:2] - gs.render_linear(0.03)[:2]).mean() < 0.04         # top rows: the tilt at 0.03 s
+    assert np.abs(a[-2:] - gs.render_linear(0.05)[-2:]).mean() < 0.04       # bottom rows: at 0.05 s
+    assert np.abs(a[-2:] - gs.render_linear(0.03)[-2:]).mean() > 0.15       # (2 deg apart: it mattered)
+    held = rs.render_linear(0.5)                          # turned, now still: one tilt for every row
+    assert_same_image(held, gs.render_linear(0.5))
+
+
 def test_featureless_stretch_has_no_texture():
     cfg = SimConfig(tilt_deg=0, window=CENTRE_WINDOW, featureless=((0.05, 0.25),), speed_m_s=1.0)
     sim = Simulator(cfg)
