@@ -232,7 +232,7 @@ class AutoTilt(FixedTilt):
             if self.track is None or read is None or not self.turn.offer(serial, *read):
                 return None
             before = m.tilt_rad + self.tau + self.keyframe_offset(t_s - self._kf_t)   # the keyframe's
-            earlier, turned = self._turned_before(lambda tilt: kind(replace(m, tilt_rad=tilt, height_m=hm)))
+            earlier, turned = self._turned_before(lambda tilt: kind(replace(m, tilt_rad=tilt, height_m=hm)), read[0])
             run = self.turn.run_closed_rad            # the steps' turn unsure in them: the tilt still has it
             self.turn.start(before + (run if abs(run) > abs(turned) else turned), before, read[0], t_s)
             self.hops, self._last, self._closing, self._sensitivity = [], None, None, 0.0
@@ -255,10 +255,11 @@ class AutoTilt(FixedTilt):
         (lat, step), _, _ = robust_step(d.T * LATERAL_AXIAL, self._floor_m, MAD_K)
         return float(step), float(lat), earlier
 
-    def _turned_before(self, at, most: int = 10) -> tuple[float, float]:
-        """A turn found: the steps closed just before it (each on the next one's first frame) began
-        it while it was too small to tell; solved again with it where it shows. (Metres the distance
-        gains, the turn they hold.)"""
+    def _turned_before(self, at, way: float, most: int = 10) -> tuple[float, float]:
+        """A turn found (`way`: its sign): the steps closed just before it (each on the next one's
+        first frame) began it while it was too small to tell; solved again with it where it shows
+        the same way (the other way, it is a car's jitter: a shaking car's brake read -0.9 deg at
+        5.8 sigma). (Metres the distance gains, the turn they hold.)"""
         chain, start = [], self._kf_t
         for hop in reversed(self.hops[-most:]):
             if hop.t_s != start:
@@ -269,7 +270,7 @@ class AutoTilt(FixedTilt):
         for hop in reversed(chain):
             solved = turned_before(at, self.projection.mount.tilt_rad + self.tau + turned, hop.xy_k, hop.xy_c,
                                    self.p.turn)
-            if solved is not None:
+            if solved is not None and solved[0] * way > 0:
                 (_, step), _, _ = robust_step(solved[1].T * LATERAL_AXIAL, self._floor_m, MAD_K)
                 gained, turned = gained + float(step) - hop.d, turned + solved[0]
         return gained, turned

@@ -25,8 +25,10 @@ class TurnParams:
     arm_deg: float = 1.5          # frames in a row turned the camera this far one way...
     arm_share: tuple = (0.7, 1.6)   # ...each turn explaining this share of the step the tracks show
     sure_z: float = 3.0           # (a frame's pitch within this many of its sigmas says nothing)
-    arm_z: float = 10.0           # the frame that starts it is this sure; a step closed before is
-                                  # solved again if the turn shows this sure in it
+    arm_z: float = 10.0           # the frame that starts it is this sure of its pitch
+    retro_z: tuple = (10.0, 5.0)  # a step closed before is solved again if a turn shows this sure in it,
+    retro_share: float = 0.2      # the second where it explains this share of the step (a moving
+                                  # car's jitter: a tenth)
     still_deg: float = 0.1        # the turn is over once the tilt's trend moves it less than this...
     still_s: float = 0.5          # ...over this long (or the car drives: the turn explains under
     drive_share: float = 0.5      # this share of the step all that while)
@@ -108,10 +110,12 @@ def _agreeing(d: np.ndarray, k: float = 6.0) -> np.ndarray:
 
 def turned_before(at, kf_tilt: float, xy_k, xy_c, p: TurnParams):
     """A closed step's turn, when a turn is found just after it (it began there, and was small yet):
-    (as solve_turn) if the features agree far better with it than without, else None. Not asked to
-    explain most of the step: the step in which the car stopped and the turn began holds both (asked
-    to, a 24 -> 34 deg turn read +0.21 % for +0.02 %). On a moving car a bounce reads as a turn too
-    (-7 mm on a creeping car's 34 mm step): only a turn found (CameraTurn.offer) asks."""
+    (as solve_turn) if the features agree far better with it than without (retro_z), else None.
+    Where the turn explains little of the step it must be surer: the step in which the car stopped
+    and the turn began holds both (asked to explain a third of it, a 24 -> 34 deg turn read +0.21 %
+    for +0.02 %), but on a moving car a bounce reads as a turn too (a shaking car's brake: -0.9 deg
+    at 5.8 sigma); where the turn explains a good part, 5 sigma will do (a photographed gravel
+    wall's 3 deg read at 8 sigma, left out: +0.9 %)."""
     solved = solve_turn(at, kf_tilt, xy_k, xy_c, 0.0, math.radians(p.half_deg))
     if solved is None:
         return None
@@ -119,7 +123,9 @@ def turned_before(at, kf_tilt: float, xy_k, xy_c, p: TurnParams):
     plain = at(kf_tilt).to_wall(xy_k[keep]) - at(kf_tilt).to_wall(xy_c[keep])
     left, before = float(np.var(d[:, 0]) + np.var(d[:, 1])), float(np.var(plain[:, 0]) + np.var(plain[:, 1]))
     z2 = len(d) * (before - left) / max(left, 1e-18)      # the turn's reduction, in its noise's units
-    return solved if z2 >= p.arm_z ** 2 else None
+    step = float(np.mean(plain[:, 1]))
+    share = 1.0 - float(np.mean(d[:, 1])) / step if step else 1.0
+    return solved if z2 >= p.retro_z[share >= p.retro_share] ** 2 else None
 
 
 class CameraTurn:
