@@ -12,7 +12,7 @@ in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
 - sweep: the operator turns it slowly (24 -> 40 deg over 6 s, 24 -> 30 over 8 s, 40 -> 10 over 3 s,
          and 24 -> 34 over 4 s on a shaking car), tilt auto;
 - stand: the crawler stops, the operator turns the camera (over 2 s, 0.3 s, 1.5 s; out and back;
-         on a shaking car; over 0.3 s with a rolling shutter; on three photographed walls at CRF 28)
+         on a shaking car; over 0.3 and 1.5 s with a rolling shutter; on three photographed walls at CRF 28)
          and drives on, tilt auto;
 - shake: suspension bounce, pitch jitter, roll and sway at several tilts and speeds: configured
          tilt with the pose estimator on (shake) and off (shake-off, the default), and tilt auto: final error and the worst deviation from the
@@ -76,6 +76,8 @@ STAND_CASES = {                           # the operator stops, turns the camera
                                    **STAND, **SHAKE),
     "stand-turn-fast-rs-24-34": dict(tilt_deg=24, tilt_schedule=((4.0, 24.0), (4.3, 34.0)), speed_m_s=0.3, seed=87,
                                      readout_ms=10.0, **STAND),   # a rolling shutter: rows turned further
+    "stand-turn-rs-24-34": dict(tilt_deg=24, tilt_schedule=((3.4, 24.0), (4.9, 34.0)), speed_m_s=0.3, seed=89,
+                                readout_ms=10.0, **STAND),
     **{f"stand-turn-{wall}-{a}-{b}": dict(tilt_deg=a, tilt_schedule=((3.4, a), (3.4 + s, b)), speed_m_s=v, seed=90 + i,
                                          texture="image", texture_image=f"skimage:{wall}", image_mm_per_px=0.4,
                                          crf=28, **STAND)      # photographed walls at CRF 28

@@ -234,7 +234,7 @@ class AutoTilt(FixedTilt):
             before = m.tilt_rad + self.tau + self.keyframe_offset(t_s - self._kf_t)   # the keyframe's
             earlier, turned = self._turned_before(lambda tilt: kind(replace(m, tilt_rad=tilt, height_m=hm)), read[0])
             run = self.turn.run_closed_rad            # the steps' turn unsure in them: the tilt still has it
-            self.turn.start(before + (run if abs(run) > abs(turned) else turned), before, read[0], t_s)
+            self.turn.start(before + (run if abs(run) > abs(turned) else turned), before, read[0], self._kf_t, t_s)
             self.hops, self._last, self._closing, self._sensitivity = [], None, None, 0.0
             self.sweep.reset()
         shift = None

@@ -38,13 +38,14 @@ class TurnParams:
     sigma_floor_deg: float = 0.1  # ...and this
 
 
-def turn_pitch(read, hh, hz, zz, rows, means):
+def turn_pitch(read, hh, hz, zz, rows, means, kept=(PITCH,)):
     """The frame's pitch against its keyframe, its sigma, and the share of the tracks' step it
     explains, or None. `read`: the pose filter's prior-free (pitch, variance), or None where the
-    pitch is not estimated: then read here from the model's normal equations (crawler/posemodel.py;
-    `means`: of its columns: the first is the step per radian of pitch, the seventh the step)."""
+    pitch is not estimated: then read here from the model's normal equations with the states
+    `kept` (crawler/posemodel.py; `means`: of its columns: the first is the step per radian of
+    pitch, the seventh the step)."""
     if read is None:
-        solved = prior_free(hh, hz, zz, rows, [PITCH])
+        solved = prior_free(hh, hz, zz, rows, sorted({PITCH, *kept}))
         if solved is None:
             return None
         read = solved[0][PITCH], solved[1][PITCH]
@@ -125,7 +126,7 @@ def turned_before(at, kf_tilt: float, xy_k, xy_c, p: TurnParams):
     z2 = len(d) * (before - left) / max(left, 1e-18)      # the turn's reduction, in its noise's units
     step = float(np.mean(plain[:, 1]))
     share = 1.0 - float(np.mean(d[:, 1])) / step if step else 1.0
-    return solved if z2 >= p.retro_z[share >= p.retro_share] ** 2 else None
+    return solved if z2 >= p.retro_z[1 if share >= p.retro_share else 0] ** 2 else None
 
 
 class CameraTurn:
@@ -174,11 +175,15 @@ class CameraTurn:
         """The turn the run of frames showed in its keyframes closed (their pitches, summed)."""
         return self._run[2]
 
-    def start(self, kf_tilt: float, began: float, guess: float, t_s: float):
-        """A turn found: its keyframe's tilt, the tilt before it (radians), the frame's turn as read."""
+    def start(self, kf_tilt: float, began: float, guess: float, kf_t: float, t_s: float):
+        """A turn found on the frame at t_s: its keyframe's tilt and time, the tilt before the turn
+        (radians), the frame's turn as read. The turn's rate so far is the read turn over the time
+        since the keyframe; the keyframe's, that too where the run began before it (else none)."""
+        rate = guess / (t_s - kf_t) if t_s > kf_t else 0.0
         self.on, self.kf_tilt, self.tilt, self.began = True, kf_tilt, kf_tilt, began
+        self._kf_rate = rate if self._run[2] else 0.0
         self.forget()
-        self._trail, self._delta, self._kf_rate = [(t_s, kf_tilt, 1.0)], guess, 0.0
+        self._trail, self._delta = [(min(kf_t, t_s - 1e-3), kf_tilt, 1.0)], guess
 
     @property
     def rates(self) -> tuple[float, float]:

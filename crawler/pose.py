@@ -156,7 +156,7 @@ class PoseEstimator:
             if not found:                          # read at a tilt searched for, a pitch is the tilt's
                 self.pitch_shown_rad = 0.0         # error, which its own sigma counts
         if found and self.tilt.auto:               # a pitch that is a turn of the camera? (the filter's
-            read = turn_pitch(self._pitch_read, hh, hz, zz, 2 * len(idx), means)   # refinement had it as the car's)
+            read = turn_pitch(self._pitch_read, hh, hz, zz, 2 * len(idx), means, self._kept)   # refinement: the car's)
             fix = self._turn_frame(kf, c, t_idx, t_xy, read, rescaled, t_s) if read else None
             if fix is not None:
                 return fix

@@ -103,7 +103,7 @@ def test_a_turn_ends_when_the_tilt_stands_still_or_the_car_drives():
 
     def run(tilts, travel_mm=0.0):
         turn = CameraTurn(p)
-        turn.start(kf_tilt, kf_tilt, 0.0, 0.0)
+        turn.start(kf_tilt, kf_tilt, 0.0, 0.0, 1.0 / 30.0)
         over = []
         for ti, tilt in zip(t[1:], tilts[1:]):
             view = _turned_view(24.0, tilt, travel_mm / 1000.0)
