@@ -3,8 +3,9 @@
 The operator stops to inspect and turns the camera: every feature moves along the wall as if the car
 had driven (24 -> 34 deg at a stand read +5 cm). Travel moves every feature by the same wall metres;
 a turn moves each by what its row sees (far rows more), the pattern the pose estimator reads as the
-frame's pitch against its keyframe (crawler/pose.py). A pitch that is large, sure of itself and
-explains the step the tracks show is a turn, not the car's jitter (which a moving car's step dwarfs).
+frame's pitch against its keyframe (crawler/pose.py). Frames in a row whose pitch explains the step
+the tracks show, one way, 1.5 deg of it, are a turn, not the car's jitter (which turns back, and
+which a moving car's step dwarfs).
 From then on each frame's travel and turn are solved together, exactly: the keyframe at its tilt, the
 frame at the tilt that makes the features agree on one step. The mount follows (crawler/autotilt.py),
 and once the tilt holds still the readings take over from the tilt reached. docs/odometry.md, "Pose".
@@ -57,7 +58,8 @@ def turn_pitch(read, hh, hz, zz, rows, means, kept=(PITCH,)):
 def solve_turn(at, kf_tilt: float, xy_k: np.ndarray, xy_c: np.ndarray, guess: float, half: float, shift=None):
     """The frame's tilt less its keyframe's (radians) at which the features agree on one step, and
     their displacements there ((n, 2): the keyframe's wall position less the frame's) of the
-    features kept (a mask: strays, far from the rest at that turn, left out), or None. `at(tilt)`: the projection at a tilt. Travel
+    features kept (a mask: strays, far from the rest at that turn, left out), or None.
+    `at(tilt)`: the projection at a tilt. Travel
     only shifts every feature alike, so the spread of the displacements is the turn's alone; its
     least is found by parabolas from the guess, and again without the strays. (The car's bounce
     and sway are not fitted with it: a height's pattern is too like a turn's in half a frame, and
