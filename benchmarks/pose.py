@@ -13,7 +13,7 @@ in its CSV) replayed by crawlerd's Service as `crawlerd --replay` would:
          and 24 -> 34 over 4 s on a shaking car), tilt auto;
 - stand: the crawler stops, the operator turns the camera (over 2 s, 0.3 s, 1.5 s; out and back;
          on a shaking car; over 0.3 and 1.5 s with a rolling shutter; on three photographed walls at CRF 28)
-         and drives on, tilt auto;
+         and drives on, or turns it while creeping at 2, 5 and 10 cm/s, tilt auto;
 - shake: suspension bounce, pitch jitter, roll and sway at several tilts and speeds: configured
          tilt with the pose estimator on (shake) and off (shake-off, the default), and tilt auto: final error and the worst deviation from the
          true trajectory mid-run, in % of the path (and of the path so far, after its first 0.2 m);
@@ -83,6 +83,13 @@ STAND_CASES = {                           # the operator stops, turns the camera
                                          crf=28, **STAND)      # photographed walls at CRF 28
        for i, (wall, a, b, s, v) in enumerate((("brick", 24, 34, 1.5, 0.3), ("grass", 40, 28, 1.0, 0.2),
                                                ("gravel", 12, 30, 2.0, 0.25)))},
+    # ...or while it creeps on
+    "creep-turn-0.02-40-25": dict(tilt_deg=40, tilt_schedule=((4.0, 40.0), (5.0, 25.0)), speed_m_s=0.02,
+                                  duration_s=9, seed=97),
+    "creep-turn-0.05-24-34": dict(tilt_deg=24, tilt_schedule=((3.0, 24.0), (5.0, 34.0)), speed_m_s=0.05,
+                                  duration_s=9, seed=95),
+    "creep-turn-0.1-24-34": dict(tilt_deg=24, tilt_schedule=((3.0, 24.0), (4.5, 34.0)), speed_m_s=0.1,
+                                 duration_s=8, seed=96),
 }
 SHAKE_CASES = {
     **{f"shake-{t}deg-{v}": dict(tilt_deg=t, speed_m_s=v, duration_s=d, seed=50 + t, **SHAKE)

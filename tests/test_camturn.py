@@ -120,6 +120,8 @@ def test_a_turn_ends_when_the_tilt_stands_still_or_the_car_drives():
     assert run(2.0 + jitter)[1][-1]
     _, over = run(np.full(len(t), 0.05) + 5.0 * t, travel_mm=8.0)   # a car driving while it turns: not
     assert not any(over[:10])
+    _, over = run(2.0 + 0.3 * t, travel_mm=100.0)           # a car that drove on, the turn a tenth: over
+    assert over[-1] and not over[10]
     assert turning.end() == pytest.approx(p.sigma_share * abs(turning.tilt - turning.began))
 
 
